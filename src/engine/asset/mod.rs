@@ -1,0 +1,18 @@
+//! Assets: safe ingest of glTF 2.0 (.glb, or .gltf with its files as named blobs), the in-memory
+//! model, constraints JSON v1, and export back to glTF.
+
+pub mod accessor;
+pub mod blobs;
+pub mod constraints;
+pub mod error;
+pub mod export;
+pub mod glb;
+pub mod images;
+pub mod load;
+pub mod model;
+pub mod uri;
+
+pub use blobs::BlobSet;
+pub use error::IngestError;
+pub use load::{load, IngestLimits};
+pub use model::*;

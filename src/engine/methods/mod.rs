@@ -1,0 +1,4 @@
+//! The transfer methods, one module per method id.
+
+pub mod align;
+pub mod project;

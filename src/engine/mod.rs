@@ -1,0 +1,10 @@
+//! The transfer engine: ingest, Surface, spatial queries, texture sampling and baking, the
+//! methods, and export. Pure and synchronous; long loops report to a [`control::Control`].
+
+pub mod asset;
+pub mod control;
+pub mod mesh;
+pub mod methods;
+pub mod pipeline;
+pub mod spatial;
+pub mod texture;

@@ -1,0 +1,7 @@
+//! Texture sampling (sRGB aware, wrap modes, KHR_texture_transform), UV-layout rasterization
+//! (baking), padding, and PNG encoding.
+
+pub mod bake;
+pub mod color;
+pub mod pad;
+pub mod sample;
