@@ -4,6 +4,7 @@
 pub mod asset;
 pub mod control;
 pub mod mesh;
+pub mod multires;
 pub mod methods;
 pub mod pipeline;
 pub mod spatial;
