@@ -1,4 +1,5 @@
 //! The transfer methods, one module per method id.
 
 pub mod align;
+pub mod correspondence;
 pub mod project;
