@@ -1,1 +1,78 @@
-fn main() {}
+//! `retex` command line: `transfer` runs exactly what a service job runs, `inspect` describes a
+//! model and the problems found in it, `bench` measures the pipeline on the shared assets.
+
+mod cli;
+
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(name = "retex", version, about = "Transfer surface appearance between meshes")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Transfer appearance from SOURCE onto TARGET and write the textured target.
+    Transfer {
+        /// Textured source model (.glb, or .gltf with its files beside it).
+        #[arg(long)]
+        source: PathBuf,
+        /// Target model.
+        #[arg(long)]
+        target: PathBuf,
+        /// Constraints JSON v1 (method, correspondences, output options, params).
+        #[arg(long)]
+        constraints: Option<PathBuf>,
+        /// Method id; overrides the constraints' method (default project).
+        #[arg(long)]
+        method: Option<String>,
+        /// Output file (.glb or .gltf; the constraints' output.format wins when given).
+        #[arg(long)]
+        out: PathBuf,
+        /// Also write the report and the baked textures into this folder.
+        #[arg(long)]
+        artifacts: Option<PathBuf>,
+        /// Hide the progress bar.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Print meshes, primitives, counts, UV sets, materials, textures, bounds and problems.
+    Inspect {
+        /// The model.
+        file: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Measure ingest and whole transfers on the shared assets; prints a Markdown table.
+    Bench {
+        /// The shared asset folder.
+        #[arg(long, default_value = "../shared/assets")]
+        assets: PathBuf,
+        /// Runs per case (the median is reported).
+        #[arg(long, default_value_t = 5)]
+        runs: usize,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Transfer { source, target, constraints, method, out, artifacts, quiet } => {
+            cli::transfer::run(&cli::transfer::Args { source, target, constraints, method, out, artifacts, quiet })
+        }
+        Command::Inspect { file, json } => cli::inspect::run(&file, json),
+        Command::Bench { assets, runs } => cli::bench::run(&assets, runs),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(message) => {
+            eprintln!("error: {message}");
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -17,3 +17,67 @@ pub fn shared_asset(relative: &str) -> PathBuf {
     assert!(p.exists(), "shared asset {} not found (set RETEX_SHARED_ASSETS)", p.display());
     p
 }
+
+/// Writes `bytes` under `target/test-outputs/NAME` and asserts that the Khronos glTF-Validator
+/// (npm `gltf-validator`, installed by `.ci/run` into `tests/validator/node_modules`) reports
+/// zero errors. Set `RETEX_SKIP_VALIDATOR=1` to skip where node is not available.
+pub fn assert_validator_clean(bytes: &[u8], name: &str) {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/test-outputs");
+    std::fs::create_dir_all(&dir).expect("create test output folder");
+    let file = dir.join(name);
+    std::fs::write(&file, bytes).expect("write test output");
+    if std::env::var("RETEX_SKIP_VALIDATOR").is_ok_and(|v| v == "1") {
+        eprintln!("validator skipped for {name} (RETEX_SKIP_VALIDATOR=1)");
+        return;
+    }
+    let harness = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/validator");
+    assert!(
+        harness.join("node_modules/gltf-validator").exists(),
+        "gltf-validator is not installed: run `npm install --prefix tests/validator --no-package-lock` (or set RETEX_SKIP_VALIDATOR=1)"
+    );
+    let out = std::process::Command::new("node")
+        .arg(harness.join("validate.mjs"))
+        .arg(&file)
+        .output()
+        .expect("run node");
+    assert!(out.status.success(), "validator failed to run: {}", String::from_utf8_lossy(&out.stderr));
+    let line = String::from_utf8_lossy(&out.stdout);
+    let report: serde_json::Value = serde_json::from_str(line.trim()).expect("validator json");
+    assert_eq!(report["errors"], 0, "validator errors in {name}: {}", report["messages"]);
+}
+
+/// Loads a model file from disk with default limits.
+pub fn load_path(path: &std::path::Path) -> retex::engine::asset::Asset {
+    let (main, blobs) = retex::engine::asset::BlobSet::from_path(path).expect("read model");
+    retex::engine::asset::load(&main, &blobs, &Default::default()).expect("load model")
+}
+
+/// Loads a model from bytes (a GLB or a self-contained .gltf).
+pub fn load_bytes(bytes: &[u8], name: &str) -> retex::engine::asset::Asset {
+    let mut blobs = retex::engine::asset::BlobSet::new();
+    blobs.insert(name, bytes.to_vec());
+    retex::engine::asset::load(name, &blobs, &Default::default()).expect("load output")
+}
+
+/// PSNR in dB between two equally sized sRGB images over the texels where `mask` is true,
+/// on the 8-bit RGB channels.
+pub fn psnr_masked(a: &[[u8; 4]], b: &[[u8; 4]], mask: &[bool]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    let mut se = 0.0f64;
+    let mut n = 0usize;
+    for i in 0..a.len() {
+        if mask[i] {
+            for k in 0..3 {
+                let d = a[i][k] as f64 - b[i][k] as f64;
+                se += d * d;
+            }
+            n += 3;
+        }
+    }
+    assert!(n > 0, "empty mask");
+    let mse = se / n as f64;
+    if mse == 0.0 {
+        return f64::INFINITY;
+    }
+    10.0 * (255.0f64 * 255.0 / mse).log10()
+}

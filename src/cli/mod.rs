@@ -1,0 +1,5 @@
+//! Subcommands of the `retex` binary.
+
+pub mod bench;
+pub mod inspect;
+pub mod transfer;

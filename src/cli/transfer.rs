@@ -1,0 +1,94 @@
+//! `retex transfer`: reads the files, runs [`retex::engine::pipeline::transfer`] on a worker
+//! thread while a progress bar shows the Control's stage and fraction, writes the output.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use indicatif::{ProgressBar, ProgressStyle};
+use retex::engine::asset::constraints::{Constraints, MethodId, OutputFormat};
+use retex::engine::asset::{BlobSet, IngestLimits};
+use retex::engine::control::Control;
+use retex::engine::pipeline::{transfer, ModelInput, TransferInput};
+
+/// Arguments of `retex transfer`.
+pub struct Args {
+    pub source: PathBuf,
+    pub target: PathBuf,
+    pub constraints: Option<PathBuf>,
+    pub method: Option<String>,
+    pub out: PathBuf,
+    pub artifacts: Option<PathBuf>,
+    pub quiet: bool,
+}
+
+fn read_model(path: &Path) -> Result<(String, BlobSet), String> {
+    BlobSet::from_path(path).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// Runs the command.
+pub fn run(args: &Args) -> Result<(), String> {
+    let (src_main, src_blobs) = read_model(&args.source)?;
+    let (tgt_main, tgt_blobs) = read_model(&args.target)?;
+    let mut constraints = match &args.constraints {
+        Some(p) => {
+            let bytes = std::fs::read(p).map_err(|e| format!("{}: {e}", p.display()))?;
+            Constraints::from_json(&bytes).map_err(|e| format!("{}: {e}", p.display()))?
+        }
+        None => {
+            let mut c = Constraints::default();
+            if args.out.extension().is_some_and(|e| e.eq_ignore_ascii_case("gltf")) {
+                c.output.format = OutputFormat::Gltf;
+            }
+            c
+        }
+    };
+    if let Some(m) = &args.method {
+        constraints.method = MethodId::parse(m).map_err(|e| e.to_string())?;
+    }
+    let control = Control::new();
+    let bar = if args.quiet { ProgressBar::hidden() } else { ProgressBar::new(1000) };
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} {elapsed_precise} [{bar:40}] {percent:>3}% {msg}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    let input = TransferInput {
+        source: ModelInput { main: &src_main, blobs: &src_blobs },
+        target: ModelInput { main: &tgt_main, blobs: &tgt_blobs },
+        constraints,
+        limits: IngestLimits::default(),
+    };
+    let result = std::thread::scope(|scope| {
+        let worker = scope.spawn(|| transfer(&input, &control));
+        while !worker.is_finished() {
+            let p = control.progress();
+            bar.set_position((p.fraction * 1000.0) as u64);
+            bar.set_message(format!("{} ({}/{})", p.stage, p.stages_done + 1, p.stages_total.max(1)));
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        worker.join().unwrap_or_else(|_| Err(retex::engine::pipeline::TransferError::Cancelled))
+    });
+    bar.finish_and_clear();
+    let output = result.map_err(|e| e.to_string())?;
+    std::fs::write(&args.out, &output.model).map_err(|e| format!("{}: {e}", args.out.display()))?;
+    if let Some(dir) = &args.artifacts {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        for a in &output.artifacts {
+            let p = dir.join(&a.name);
+            std::fs::write(&p, &a.bytes).map_err(|e| format!("{}: {e}", p.display()))?;
+        }
+    }
+    if !args.quiet {
+        let total: f64 = output.report.timings.iter().map(|t| t.ms).sum();
+        eprintln!("wrote {} ({} bytes) in {:.0} ms", args.out.display(), output.model.len(), total);
+        for w in output.report.source_warnings.iter().chain(&output.report.target_warnings) {
+            eprintln!("warning: {w}");
+        }
+        if let Some(ws) = output.report.method_report.get("warnings").and_then(|w| w.as_array()) {
+            for w in ws.iter().filter_map(|w| w.as_str()) {
+                eprintln!("warning: {w}");
+            }
+        }
+    }
+    Ok(())
+}
