@@ -215,6 +215,28 @@ fn prepare(tri: &[[f32; 2]; 3], width: u32, height: u32) -> Prepared {
     })
 }
 
+/// `floor` of a finite f64 of moderate size (a cast and a fix-up; cheaper than the libm call).
+#[inline(always)]
+fn floor_i64(x: f64) -> i64 {
+    let t = x as i64;
+    if (t as f64) > x {
+        t - 1
+    } else {
+        t
+    }
+}
+
+/// `ceil` of a finite f64 of moderate size.
+#[inline(always)]
+fn ceil_i64(x: f64) -> i64 {
+    let t = x as i64;
+    if (t as f64) < x {
+        t + 1
+    } else {
+        t
+    }
+}
+
 /// A triangle's visit of one band: which triangle and which repeat tile row.
 #[derive(Clone, Copy, Debug)]
 struct BandEntry {
@@ -238,44 +260,60 @@ pub fn rasterize_uv_layout(triangles: &[[[f32; 2]; 3]], width: u32, height: u32)
             overlapped: 0,
         };
     }
-    let prepared: Vec<Prepared> = triangles
+    let setups: Vec<Option<Setup>> = triangles
         .par_iter()
-        .map(|t| prepare(t, width, height))
+        .map(|t| match prepare(t, width, height) {
+            Prepared::Ok(s) => Some(s),
+            Prepared::Degenerate | Prepared::Skipped => None,
+        })
         .collect();
 
+    // Binning: chunks of triangles are binned in parallel, then each band concatenates its lists
+    // in chunk order, so every band lists its triangles in increasing index order.
     let (w, h) = (width as i64, height as i64);
     let band_count = height.div_ceil(BAND_ROWS) as usize;
-    let mut bands: Vec<Vec<BandEntry>> = vec![Vec::new(); band_count];
-    let mut setups: Vec<Option<Setup>> = Vec::with_capacity(prepared.len());
-    for (i, p) in prepared.into_iter().enumerate() {
-        let s = match p {
-            Prepared::Ok(s) => s,
-            Prepared::Degenerate | Prepared::Skipped => {
-                setups.push(None);
-                continue;
+    let chunk = (setups.len() / 64).max(2048);
+    let partial: Vec<Vec<Vec<BandEntry>>> = setups
+        .par_chunks(chunk)
+        .enumerate()
+        .map(|(c, part)| {
+            let mut bands: Vec<Vec<BandEntry>> = vec![Vec::new(); band_count];
+            for (k, s) in part.iter().enumerate() {
+                let Some(s) = s else { continue };
+                let triangle = (c * chunk + k) as u32;
+                for tile_row in s.y_lo.div_euclid(h)..=s.y_hi.div_euclid(h) {
+                    let lo = (s.y_lo - tile_row * h).max(0);
+                    let hi = (s.y_hi - tile_row * h).min(h - 1);
+                    if lo > hi {
+                        continue;
+                    }
+                    let (b0, b1) = (
+                        lo as usize / BAND_ROWS as usize,
+                        hi as usize / BAND_ROWS as usize,
+                    );
+                    for band in &mut bands[b0..=b1] {
+                        band.push(BandEntry { triangle, tile_row });
+                    }
+                }
             }
-        };
-        for tile_row in s.y_lo.div_euclid(h)..=s.y_hi.div_euclid(h) {
-            let lo = (s.y_lo - tile_row * h).max(0);
-            let hi = (s.y_hi - tile_row * h).min(h - 1);
-            if lo > hi {
-                continue;
+            bands
+        })
+        .collect();
+    let bands: Vec<Vec<BandEntry>> = (0..band_count)
+        .into_par_iter()
+        .map(|b| {
+            let mut all = Vec::with_capacity(partial.iter().map(|p| p[b].len()).sum());
+            for p in &partial {
+                all.extend_from_slice(&p[b]);
             }
-            let (b0, b1) = (
-                lo as usize / BAND_ROWS as usize,
-                hi as usize / BAND_ROWS as usize,
-            );
-            for band in &mut bands[b0..=b1] {
-                band.push(BandEntry {
-                    triangle: i as u32,
-                    tile_row,
-                });
-            }
-        }
-        setups.push(Some(s));
-    }
+            all
+        })
+        .collect();
+    drop(partial);
 
-    let mut hits: Vec<Option<TexelHit>> = vec![None; n_texels];
+    // Filled in parallel so the page faults of this large buffer are shared by the threads.
+    let mut hits: Vec<Option<TexelHit>> = Vec::new();
+    hits.par_extend(rayon::iter::repeat_n(None, n_texels));
     let band_texels = BAND_ROWS as usize * width as usize;
     let overlapped: u64 = hits
         .par_chunks_mut(band_texels)
@@ -313,8 +351,8 @@ pub fn rasterize_uv_layout(triangles: &[[[f32; 2]; 3]], width: u32, height: u32)
                     if empty || lo > hi + 2.0 {
                         continue;
                     }
-                    let x_from = ((lo - 0.5).ceil() as i64 - 1).max(s.x_lo);
-                    let x_to = ((hi - 0.5).floor() as i64 + 1).min(s.x_hi);
+                    let x_from = (ceil_i64(lo - 0.5) - 1).max(s.x_lo);
+                    let x_to = (floor_i64(hi - 0.5) + 1).min(s.x_hi);
                     let row_off = (y - row0) as usize * width as usize;
                     let mut xw = x_from.rem_euclid(w) as usize;
                     for x in x_from..=x_to {

@@ -48,7 +48,8 @@ fn alpha8(a: f32) -> u8 {
     if a.is_nan() {
         0
     } else {
-        (a.clamp(0.0, 1.0) * 255.0).round() as u8
+        // Round half up (non-negative input, so the truncating cast after + 0.5 is `round`).
+        (a.clamp(0.0, 1.0) * 255.0 + 0.5) as u8
     }
 }
 

@@ -15,10 +15,11 @@
 //!
 //! Covered texels never change; filled values are convex combinations of covered values, so no
 //! channel leaves the range of the covered texels. Deterministic for any thread count (each
-//! output value depends only on the previous round or level). Written by hand: it is small and
+//! output value depends only on the previous round or level, never on scheduling). Written by hand: it is small and
 //! tied to our coverage masks.
 
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU8, Ordering};
 
 /// How many texels each stage of [`pad`] set.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
@@ -57,83 +58,140 @@ pub fn pad(
     PadReport { padded, filled }
 }
 
-/// The 8-neighbourhood of texel `i` (within the image).
+/// The 8-neighbourhood of texel `i` (within the image): indices in the first `n` slots.
 #[inline]
-fn neighbours(i: usize, w: usize, h: usize) -> impl Iterator<Item = usize> {
-    let (x, y) = ((i % w) as isize, (i / w) as isize);
-    (-1isize..=1)
-        .flat_map(move |dy| (-1isize..=1).map(move |dx| (dx, dy)))
-        .filter(|&(dx, dy)| dx != 0 || dy != 0)
-        .filter_map(move |(dx, dy)| {
-            let (nx, ny) = (x + dx, y + dy);
-            (nx >= 0 && ny >= 0 && (nx as usize) < w && (ny as usize) < h)
-                .then(|| ny as usize * w + nx as usize)
-        })
+fn neighbours(i: usize, w: usize, h: usize) -> ([usize; 8], usize) {
+    let (x, y) = (i % w, i / w);
+    if x > 0 && y > 0 && x + 1 < w && y + 1 < h {
+        return (
+            [
+                i - w - 1,
+                i - w,
+                i - w + 1,
+                i - 1,
+                i + 1,
+                i + w - 1,
+                i + w,
+                i + w + 1,
+            ],
+            8,
+        );
+    }
+    let mut out = [0usize; 8];
+    let mut n = 0;
+    for ny in y.saturating_sub(1)..(y + 2).min(h) {
+        for nx in x.saturating_sub(1)..(x + 2).min(w) {
+            if nx != x || ny != y {
+                out[n] = ny * w + nx;
+                n += 1;
+            }
+        }
+    }
+    (out, n)
 }
 
+/// States of a texel during dilation.
+const EMPTY: u8 = 0;
+const SET: u8 = 1;
+const QUEUED: u8 = 2;
+
 /// Dilation rounds; returns the number of texels set. Works on a frontier (the unset texels next
-/// to set ones), so a round costs in proportion to the texels it sets.
+/// to set ones), so a round costs in proportion to the texels it sets. The values of a round are
+/// computed from the state before the round, and the frontier is a set (its order, which may
+/// vary between runs, does not affect any value), so the result is deterministic.
 fn dilate(pixels: &mut [[f32; 4]], set: &mut [bool], w: usize, h: usize, rounds: u32) -> u64 {
     if rounds == 0 {
         return 0;
     }
-    let mut queued = vec![false; set.len()];
-    let mut frontier: Vec<usize> = {
-        let set_ro: &[bool] = set;
-        (0..h)
-            .into_par_iter()
-            .flat_map_iter(|y| {
-                (y * w..(y + 1) * w)
-                    .filter(move |&i| !set_ro[i] && neighbours(i, w, h).any(|j| set_ro[j]))
+    let state: Vec<AtomicU8> = set
+        .par_iter()
+        .map(|&s| AtomicU8::new(if s { SET } else { EMPTY }))
+        .collect();
+    let is_set = |j: usize| state[j].load(Ordering::Relaxed) == SET;
+    let mut frontier: Vec<usize> = (0..h)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            let state = &state;
+            (y * w..(y + 1) * w).filter(move |&i| {
+                if state[i].load(Ordering::Relaxed) == SET {
+                    return false;
+                }
+                let (nb, n) = neighbours(i, w, h);
+                nb[..n]
+                    .iter()
+                    .any(|&j| state[j].load(Ordering::Relaxed) == SET)
             })
-            .collect()
-    };
-    frontier.sort_unstable();
-    for &i in &frontier {
-        queued[i] = true;
-    }
+        })
+        .collect();
+    frontier
+        .par_iter()
+        .for_each(|&i| state[i].store(QUEUED, Ordering::Relaxed));
     let mut total = 0u64;
-    for _ in 0..rounds {
+    let mut values: Vec<[f32; 4]> = Vec::new();
+    for round in 0..rounds {
         if frontier.is_empty() {
             break;
         }
-        let values: Vec<[f32; 4]> = {
-            let (px, st): (&[[f32; 4]], &[bool]) = (pixels, set);
+        {
+            let px: &[[f32; 4]] = pixels;
             frontier
                 .par_iter()
                 .map(|&i| {
+                    let (nb, n) = neighbours(i, w, h);
                     let mut sum = [0.0f32; 4];
                     let mut count = 0u32;
-                    for j in neighbours(i, w, h) {
-                        if st[j] {
-                            for k in 0..4 {
-                                sum[k] += px[j][k];
-                            }
+                    for &j in &nb[..n] {
+                        if is_set(j) {
+                            let p = px[j];
+                            sum[0] += p[0];
+                            sum[1] += p[1];
+                            sum[2] += p[2];
+                            sum[3] += p[3];
                             count += 1;
                         }
                     }
                     let inv = 1.0 / count.max(1) as f32;
                     sum.map(|s| s * inv)
                 })
-                .collect()
-        };
+                .collect_into_vec(&mut values);
+        }
         for (&i, v) in frontier.iter().zip(&values) {
             pixels[i] = *v;
-            set[i] = true;
         }
+        frontier
+            .par_iter()
+            .for_each(|&i| state[i].store(SET, Ordering::Relaxed));
         total += frontier.len() as u64;
-        let mut next = Vec::new();
-        for &i in &frontier {
-            for j in neighbours(i, w, h) {
-                if !set[j] && !queued[j] {
-                    queued[j] = true;
-                    next.push(j);
-                }
-            }
+        if round + 1 == rounds {
+            break;
         }
-        next.sort_unstable();
-        frontier = next;
+        // Next frontier: the empty neighbours of this one; the compare-exchange lists each once.
+        frontier = frontier
+            .par_chunks(4096)
+            .flat_map_iter(|chunk| {
+                let state = &state;
+                chunk.iter().flat_map(move |&i| {
+                    let (nb, n) = neighbours(i, w, h);
+                    (0..n).map(move |k| nb[k]).filter(move |&j| {
+                        // Plain load first: most neighbours are already set, and a
+                        // compare-exchange is far more expensive than a load.
+                        state[j].load(Ordering::Relaxed) == EMPTY
+                            && state[j]
+                                .compare_exchange(
+                                    EMPTY,
+                                    QUEUED,
+                                    Ordering::Relaxed,
+                                    Ordering::Relaxed,
+                                )
+                                .is_ok()
+                    })
+                })
+            })
+            .collect();
     }
+    set.par_iter_mut()
+        .zip(&state)
+        .for_each(|(s, st)| *s = st.load(Ordering::Relaxed) == SET);
     total
 }
 
@@ -193,7 +251,8 @@ where
 fn upsample(level: &Level, x: usize, y: usize) -> [f32; 4] {
     let fx = ((x as f32 + 0.5) * 0.5 - 0.5).clamp(0.0, (level.w - 1) as f32);
     let fy = ((y as f32 + 0.5) * 0.5 - 0.5).clamp(0.0, (level.h - 1) as f32);
-    let (x0, y0) = (fx.floor() as usize, fy.floor() as usize);
+    // Non-negative after the clamp: truncation is floor.
+    let (x0, y0) = (fx as usize, fy as usize);
     let (x1, y1) = ((x0 + 1).min(level.w - 1), (y0 + 1).min(level.h - 1));
     let (tx, ty) = (fx - x0 as f32, fy - y0 as f32);
     let c = |xx: usize, yy: usize| level.color[yy * level.w + xx];

@@ -34,9 +34,24 @@ pub fn apply_uv_transform(t: &UvTransform, uv: [f32; 2]) -> [f32; 2] {
     [c * x + s * y + t.offset[0], -s * x + c * y + t.offset[1]]
 }
 
+/// `floor` for finite values of moderate size, as a truncating cast and a fix-up (the baseline
+/// x86-64 target has no rounding instruction, so `f32::floor` is a library call).
+#[inline(always)]
+fn floor_i64(x: f32) -> i64 {
+    let t = x as i64;
+    if (t as f32) > x {
+        t - 1
+    } else {
+        t
+    }
+}
+
 /// Maps an integer texel index onto `[0, size)` with a glTF wrap mode.
 #[inline]
 fn wrap_index(i: i64, size: i64, wrap: Wrap) -> usize {
+    if (0..size).contains(&i) {
+        return i as usize;
+    }
     let r = match wrap {
         Wrap::Repeat => i.rem_euclid(size),
         Wrap::ClampToEdge => i.clamp(0, size - 1),
@@ -98,17 +113,15 @@ pub fn sample_image(img: &DecodedImage, sampler: &Sampler, uv: [f32; 2]) -> [f32
     let u = sanitize(uv[0], sampler.wrap_s);
     let v = sanitize(uv[1], sampler.wrap_t);
     if sampler.nearest {
-        let x = wrap_index((u * w as f32).floor() as i64, w, sampler.wrap_s);
-        let y = wrap_index((v * h as f32).floor() as i64, h, sampler.wrap_t);
+        let x = wrap_index(floor_i64(u * w as f32), w, sampler.wrap_s);
+        let y = wrap_index(floor_i64(v * h as f32), h, sampler.wrap_t);
         return texel(table, img.pixels[y * w as usize + x]);
     }
     let fx = u * w as f32 - 0.5;
     let fy = v * h as f32 - 0.5;
-    let x0f = fx.floor();
-    let y0f = fy.floor();
-    let tx = fx - x0f;
-    let ty = fy - y0f;
-    let (x0, y0) = (x0f as i64, y0f as i64);
+    let (x0, y0) = (floor_i64(fx), floor_i64(fy));
+    let tx = fx - x0 as f32;
+    let ty = fy - y0 as f32;
     let xa = wrap_index(x0, w, sampler.wrap_s);
     let xb = wrap_index(x0 + 1, w, sampler.wrap_s);
     let ya = wrap_index(y0, h, sampler.wrap_t) * w as usize;
