@@ -5,7 +5,7 @@
 //! `cargo test --release --test texture_properties -- --ignored --nocapture`. Timings are not
 //! asserted here (they belong in benchmarks).
 
-use retex::engine::texture::bake::rasterize_uv_layout;
+use retex::engine::texture::bake::{rasterize_uv_layout, TexelHit};
 use retex::engine::texture::encode::{decode_png_linear, encode_png_srgb};
 use retex::engine::texture::pad::pad;
 use retex::engine::texture::sample::sample_image;
@@ -35,6 +35,17 @@ fn chart_grid(n: usize, gutter: f32) -> Vec<[[f32; 2]; 3]> {
     tris
 }
 
+/// The UV of a hit: its barycentrics applied to its triangle's UVs.
+fn uv_of(tris: &[[[f32; 2]; 3]], hit: &TexelHit) -> [f32; 2] {
+    let t = &tris[hit.triangle as usize];
+    let mut uv = [0.0f32; 2];
+    for (b, p) in hit.bary.iter().zip(t) {
+        uv[0] += b * p[0];
+        uv[1] += b * p[1];
+    }
+    uv
+}
+
 fn color_of_uv(uv: [f32; 2]) -> [f32; 4] {
     [
         0.2 + 0.6 * uv[0],
@@ -61,13 +72,7 @@ fn bake_pad_encode_round_trip() {
     let mut pixels = vec![[0.0f32; 4]; (w * h) as usize];
     for (i, hit) in map.hits.iter().enumerate() {
         if let Some(hit) = hit {
-            let t = &tris[hit.triangle as usize];
-            let mut uv = [0.0f32; 2];
-            for k in 0..3 {
-                uv[0] += hit.bary[k] * t[k][0];
-                uv[1] += hit.bary[k] * t[k][1];
-            }
-            pixels[i] = color_of_uv(uv);
+            pixels[i] = color_of_uv(uv_of(&tris, hit));
         }
     }
     let covered = map.mask();
@@ -119,13 +124,7 @@ fn sampler_and_rasterizer_agree_on_texel_centers() {
     for y in 0..h {
         for x in 0..w {
             let hit = map.hit(x, y).unwrap();
-            let t = &tris[hit.triangle as usize];
-            let mut uv = [0.0f32; 2];
-            for k in 0..3 {
-                uv[0] += hit.bary[k] * t[k][0];
-                uv[1] += hit.bary[k] * t[k][1];
-            }
-            let c = sample_image(&img, &s, uv);
+            let c = sample_image(&img, &s, uv_of(&tris, &hit));
             let p = img.pixels[(y * w + x) as usize];
             let expect = retex::engine::texture::color::srgb8_to_linear(p[0]);
             assert!(
