@@ -16,11 +16,12 @@
 //!   `(−ε, ε²)` — so a texel on an edge (or on a vertex inside a fan) of one chart counts once.
 //!
 //! Wrapping: UVs outside [0, 1] repeat (`REPEAT`), the way a viewer with the default sampler
-//! would show them. A triangle is first shifted by whole tiles (exact in f64) so its UV bounding
-//! box starts in tile (0, 0); texel indices are then taken modulo the size. A triangle whose UV
-//! bounding box is wider or taller than [`MAX_UV_SPAN`] tiles, or that has a non-finite UV, is
-//! skipped (it cannot be baked meaningfully and would cost up to span² full textures of work);
-//! [`skipped_triangles`] counts them. Degenerate (zero-area) triangles cover nothing.
+//! would show them. Texel indices are computed in the unwrapped plane and taken modulo the size
+//! (a triangle beyond ±1024 tiles is first shifted by whole tiles to keep coordinates small).
+//! A triangle whose UV bounding box is wider or taller than [`MAX_UV_SPAN`] tiles, or that has a
+//! non-finite UV, is skipped (it cannot be baked meaningfully and would cost up to span² full
+//! textures of work); [`skipped_triangles`] counts them. Degenerate (zero-area) triangles cover
+//! nothing.
 //!
 //! Overlaps: a texel covered more than once (overlapping or mirrored charts, or a triangle that
 //! covers it again in another repeat tile) keeps the lowest triangle index and is counted once in
@@ -39,6 +40,9 @@ use rayon::prelude::*;
 
 /// Triangles whose UV bounding box spans more than this many tiles in u or in v are skipped.
 pub const MAX_UV_SPAN: f64 = 8.0;
+
+/// UV coordinates within ±this range are rasterized without a tile shift (see `prepare`).
+const NO_SHIFT_RANGE: f64 = 1024.0;
 
 /// Rows per band of the parallel rasterization.
 pub const BAND_ROWS: u32 = 16;
@@ -176,9 +180,18 @@ fn prepare(tri: &[[f32; 2]; 3], width: u32, height: u32) -> Prepared {
     if umax - umin > MAX_UV_SPAN || vmax - vmin > MAX_UV_SPAN {
         return Prepared::Skipped;
     }
-    // Shift by whole tiles (exact: the fractional part of an f32 is representable) and scale to
-    // pixels (exact in f64 for f32 inputs and sizes below 2^29).
-    let (su, sv) = (umin.floor(), vmin.floor());
+    // UVs within ±NO_SHIFT_RANGE are used as they are, so triangles that share an edge see the
+    // very same coordinates and edge-function arithmetic (the shared-edge rule relies on it).
+    // Triangles farther out are shifted by whole tiles to keep the pixel coordinates small.
+    // Scaling an f32 by the size is exact in f64.
+    let shift = |min: f64, max: f64| {
+        if min >= -NO_SHIFT_RANGE && max <= NO_SHIFT_RANGE {
+            0.0
+        } else {
+            min.floor()
+        }
+    };
+    let (su, sv) = (shift(umin, umax), shift(vmin, vmax));
     let (w, h) = (width as f64, height as f64);
     let mut p = [[0.0f64; 2]; 3];
     for k in 0..3 {
@@ -592,6 +605,13 @@ mod tests {
             rasterize_uv_layout(&[tri], 50, 40),
             rasterize_uv_layout(&[moved], 50, 40)
         );
+        // Far away (beyond the no-shift range): still every texel once.
+        let far: Vec<[[f32; 2]; 3]> = unit_square()
+            .iter()
+            .map(|t| t.map(|p| [p[0] + 5000.0, p[1] - 7000.0]))
+            .collect();
+        let map = rasterize_uv_layout(&far, 32, 32);
+        assert_eq!((map.covered(), map.overlapped), (1024, 0));
         // A quad spanning two tiles covers each texel twice: once overlapped.
         let wide: Vec<[[f32; 2]; 3]> = unit_square()
             .iter()
