@@ -3,5 +3,6 @@
 
 pub mod bake;
 pub mod color;
+pub mod encode;
 pub mod pad;
 pub mod sample;
