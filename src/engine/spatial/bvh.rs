@@ -110,8 +110,8 @@ impl Aabb {
     #[inline(always)]
     fn grow(&mut self, lo: [f32; 3], hi: [f32; 3]) {
         for k in 0..3 {
-            self.lo[k] = self.lo[k].min(lo[k]);
-            self.hi[k] = self.hi[k].max(hi[k]);
+            self.lo[k] = fmin(self.lo[k], lo[k]);
+            self.hi[k] = fmax(self.hi[k], hi[k]);
         }
     }
 
@@ -131,6 +131,26 @@ impl Aabb {
             return 0.0;
         }
         d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+    }
+}
+
+/// `min` without NaN handling (maps to a single instruction).
+#[inline(always)]
+fn fmin(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `max` without NaN handling (maps to a single instruction).
+#[inline(always)]
+fn fmax(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
     }
 }
 
@@ -185,27 +205,31 @@ impl Bins {
 struct Binner {
     origin: [f32; 3],
     scale: [f32; 3],
+    /// Bins in use: fewer for small nodes, where the sweep would dominate.
+    bins: usize,
 }
 
 impl Binner {
-    fn new(c: &Aabb) -> Self {
+    fn new(c: &Aabb, count: usize) -> Self {
+        let bins = (count / 2).clamp(4, BINS);
         let mut scale = [0.0; 3];
         for (k, s) in scale.iter_mut().enumerate() {
             let ext = c.hi[k] - c.lo[k];
             if ext > 0.0 {
-                *s = BINS as f32 * (1.0 - 1e-5) / ext;
+                *s = bins as f32 * (1.0 - 1e-5) / ext;
             }
         }
         Binner {
             origin: c.lo,
             scale,
+            bins,
         }
     }
 
     #[inline(always)]
     fn bin(&self, p: &Prim, axis: usize) -> usize {
         let x = (p.centroid2(axis) - self.origin[axis]) * self.scale[axis];
-        (x.max(0.0) as usize).min(BINS - 1)
+        (fmax(x, 0.0) as usize).min(self.bins - 1)
     }
 
     fn fill(&self, prims: &[Prim]) -> Bins {
@@ -223,6 +247,7 @@ impl Binner {
 
 /// Chooses (axis, last bin of the left side) of least SAH cost, if any axis has extent.
 fn best_split(binner: &Binner, bins: &Bins) -> Option<(usize, usize)> {
+    let nb = binner.bins;
     let mut best: Option<(f32, usize, usize)> = None;
     for k in 0..3 {
         if binner.scale[k] <= 0.0 {
@@ -231,15 +256,15 @@ fn best_split(binner: &Binner, bins: &Bins) -> Option<(usize, usize)> {
         let mut right_cost = [0.0f32; BINS];
         let mut acc = Aabb::EMPTY;
         let mut n = 0u32;
-        for b in (1..BINS).rev() {
+        for b in (1..nb).rev() {
             acc = acc.union(bins.bounds[k][b]);
             n += bins.count[k][b];
             right_cost[b] = acc.half_area() * n as f32;
         }
         let mut acc = Aabb::EMPTY;
         let mut n = 0u32;
-        let total: u32 = bins.count[k].iter().sum();
-        for b in 0..BINS - 1 {
+        let total: u32 = bins.count[k][..nb].iter().sum();
+        for b in 0..nb - 1 {
             acc = acc.union(bins.bounds[k][b]);
             n += bins.count[k][b];
             if n == 0 || n == total {
@@ -254,39 +279,70 @@ fn best_split(binner: &Binner, bins: &Bins) -> Option<(usize, usize)> {
     best.map(|(_, k, b)| (k, b))
 }
 
-/// In-place partition; returns the size of the `pred == true` prefix.
-fn partition(prims: &mut [Prim], pred: impl Fn(&Prim) -> bool) -> usize {
+/// Bounds of a range of prims: their boxes and their (doubled) centroids.
+#[derive(Clone, Copy)]
+struct Extent {
+    bx: Aabb,
+    cb: Aabb,
+}
+
+impl Extent {
+    const EMPTY: Extent = Extent {
+        bx: Aabb::EMPTY,
+        cb: Aabb::EMPTY,
+    };
+
+    #[inline(always)]
+    fn grow(&mut self, p: &Prim) {
+        self.bx.grow(p.lo, p.hi);
+        let m = [p.centroid2(0), p.centroid2(1), p.centroid2(2)];
+        self.cb.grow(m, m);
+    }
+
+    fn of(prims: &[Prim]) -> Extent {
+        let (bx, cb) = bounds(prims);
+        Extent { bx, cb }
+    }
+}
+
+/// In-place partition; returns the size of the `pred == true` prefix and the extents of both
+/// sides (each element is classified exactly once).
+fn partition(prims: &mut [Prim], pred: impl Fn(&Prim) -> bool) -> (usize, Extent, Extent) {
+    let mut left = Extent::EMPTY;
+    let mut right = Extent::EMPTY;
     let mut i = 0;
     let mut j = prims.len();
     while i < j {
         if pred(&prims[i]) {
+            left.grow(&prims[i]);
             i += 1;
         } else {
             j -= 1;
             prims.swap(i, j);
+            right.grow(&prims[j]);
         }
     }
-    i
+    (i, left, right)
 }
 
-/// Builds the subtree over `prims` (which start at leaf-order offset `base`) into a node list
-/// whose indices are relative to its own root at 0.
-fn build_subtree(prims: &mut [Prim], base: u32, depth: u32) -> Vec<Node> {
+/// Builds the subtree over `prims` (which start at leaf-order offset `base`, with extent `ext`)
+/// into a node list whose indices are relative to its own root at 0.
+fn build_subtree(prims: &mut [Prim], ext: Extent, base: u32, depth: u32) -> Vec<Node> {
     if prims.len() < PAR_SUBTREE {
         let mut nodes = Vec::with_capacity(prims.len() / 2 + 1);
-        build_into(prims, base, depth, &mut nodes);
+        build_into(prims, ext, base, depth, &mut nodes);
         return nodes;
     }
-    let (bx, mid) = split(prims, depth);
+    let (mid, le, re) = split(prims, &ext, depth);
     let (left, right) = prims.split_at_mut(mid);
     let (ln, rn) = rayon::join(
-        || build_subtree(left, base, depth + 1),
-        || build_subtree(right, base + mid as u32, depth + 1),
+        || build_subtree(left, le, base, depth + 1),
+        || build_subtree(right, re, base + mid as u32, depth + 1),
     );
     let mut nodes = Vec::with_capacity(1 + ln.len() + rn.len());
     nodes.push(Node {
-        lo: bx.lo,
-        hi: bx.hi,
+        lo: ext.bx.lo,
+        hi: ext.bx.hi,
         index: 1 + ln.len() as u32,
         count: 0,
     });
@@ -303,35 +359,35 @@ fn build_subtree(prims: &mut [Prim], base: u32, depth: u32) -> Vec<Node> {
 }
 
 /// Sequential recursive build appending to `nodes` (indices relative to `nodes`).
-fn build_into(prims: &mut [Prim], base: u32, depth: u32, nodes: &mut Vec<Node>) {
+fn build_into(prims: &mut [Prim], ext: Extent, base: u32, depth: u32, nodes: &mut Vec<Node>) {
     if prims.len() <= MAX_LEAF {
-        let (b, _) = bounds(prims);
         nodes.push(Node {
-            lo: b.lo,
-            hi: b.hi,
+            lo: ext.bx.lo,
+            hi: ext.bx.hi,
             index: base,
             count: prims.len() as u32,
         });
         return;
     }
-    let (bx, mid) = split(prims, depth);
+    let (mid, le, re) = split(prims, &ext, depth);
     let me = nodes.len();
     nodes.push(Node {
-        lo: bx.lo,
-        hi: bx.hi,
+        lo: ext.bx.lo,
+        hi: ext.bx.hi,
         index: 0,
         count: 0,
     });
     let (left, right) = prims.split_at_mut(mid);
-    build_into(left, base, depth + 1, nodes);
+    build_into(left, le, base, depth + 1, nodes);
     nodes[me].index = nodes.len() as u32;
-    build_into(right, base + mid as u32, depth + 1, nodes);
+    build_into(right, re, base + mid as u32, depth + 1, nodes);
 }
 
-/// Splits `prims` (more than `MAX_LEAF`) in place; returns the node box and the left size.
-fn split(prims: &mut [Prim], depth: u32) -> (Aabb, usize) {
-    let (bx, cb) = bounds(prims);
-    let binner = Binner::new(&cb);
+/// Splits `prims` (more than `MAX_LEAF`, extent `ext`) in place; returns the left size and the
+/// extents of both sides.
+fn split(prims: &mut [Prim], ext: &Extent, depth: u32) -> (usize, Extent, Extent) {
+    let cb = ext.cb;
+    let binner = Binner::new(&cb, prims.len());
     if depth < MEDIAN_DEPTH {
         let bins = if prims.len() >= PAR_BIN {
             prims
@@ -342,21 +398,23 @@ fn split(prims: &mut [Prim], depth: u32) -> (Aabb, usize) {
             binner.fill(prims)
         };
         if let Some((axis, last)) = best_split(&binner, &bins) {
-            let mid = partition(prims, |p| binner.bin(p, axis) <= last);
+            // The bins already count each side, so the partition cannot leave a side empty
+            // unless rounding disagrees; then fall through to the median split.
+            let (mid, le, re) = partition(prims, |p| binner.bin(p, axis) <= last);
             if mid > 0 && mid < prims.len() {
-                return (bx, mid);
+                return (mid, le, re);
             }
         }
     }
     // Object median along the widest centroid axis (or by face index when all coincide).
-    let ext = [
+    let w = [
         cb.hi[0] - cb.lo[0],
         cb.hi[1] - cb.lo[1],
         cb.hi[2] - cb.lo[2],
     ];
-    let axis = if ext[0] >= ext[1] && ext[0] >= ext[2] {
+    let axis = if w[0] >= w[1] && w[0] >= w[2] {
         0
-    } else if ext[1] >= ext[2] {
+    } else if w[1] >= w[2] {
         1
     } else {
         2
@@ -367,14 +425,15 @@ fn split(prims: &mut [Prim], depth: u32) -> (Aabb, usize) {
             .total_cmp(&b.centroid2(axis))
             .then(a.face.cmp(&b.face))
     });
-    (bx, mid)
+    let (left, right) = prims.split_at(mid);
+    (mid, Extent::of(left), Extent::of(right))
 }
 
 #[inline(always)]
 fn box_distance_squared(n: &Node, p: [f32; 3]) -> f32 {
-    let dx = (n.lo[0] - p[0]).max(p[0] - n.hi[0]).max(0.0);
-    let dy = (n.lo[1] - p[1]).max(p[1] - n.hi[1]).max(0.0);
-    let dz = (n.lo[2] - p[2]).max(p[2] - n.hi[2]).max(0.0);
+    let dx = fmax(fmax(n.lo[0] - p[0], p[0] - n.hi[0]), 0.0);
+    let dy = fmax(fmax(n.lo[1] - p[1], p[1] - n.hi[1]), 0.0);
+    let dz = fmax(fmax(n.lo[2] - p[2], p[2] - n.hi[2]), 0.0);
     dx * dx + dy * dy + dz * dz
 }
 
@@ -402,8 +461,8 @@ impl Ray {
             let a = (n.lo[k] - self.origin[k]) * self.inv[k];
             let b = (n.hi[k] - self.origin[k]) * self.inv[k];
             let (near, far) = if a <= b { (a, b) } else { (b, a) };
-            t0 = t0.max(near - near.abs() * WIDEN);
-            t1 = t1.min(far + far.abs() * WIDEN);
+            t0 = fmax(t0, near - near.abs() * WIDEN);
+            t1 = fmin(t1, far + far.abs() * WIDEN);
         }
         (t0 <= t1).then_some(t0)
     }
@@ -438,7 +497,8 @@ impl Bvh {
         let nodes = if prims.is_empty() {
             Vec::new()
         } else {
-            build_subtree(&mut prims, 0, 0)
+            let ext = Extent::of(&prims);
+            build_subtree(&mut prims, ext, 0, 0)
         };
         let tris = prims
             .par_iter()
@@ -587,11 +647,10 @@ impl Bvh {
         if self.nodes.is_empty() || t_min.is_nan() || t_max.is_nan() || t_max <= t_min {
             return None;
         }
-        let ray = Ray {
-            origin,
-            inv: dir.map(|d| 1.0 / d),
-            flat: dir.map(|d| d == 0.0),
-        };
+        let inv = dir.map(|d| 1.0 / d);
+        // Zero (or subnormal) components never leave their slab: test those by position.
+        let flat = inv.map(|i| !i.is_finite());
+        let ray = Ray { origin, inv, flat };
         let mut limit = t_max;
         let mut best: Option<RayHit> = None;
         let mut stack = [(0u32, 0.0f32); STACK];
