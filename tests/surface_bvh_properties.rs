@@ -1033,3 +1033,67 @@ fn results_are_identical_with_one_and_two_threads() {
 fn sp_vertex_count(level: u32) -> usize {
     10 * 4usize.pow(level) + 2
 }
+
+// ---------------------------------------------------------------------------------------------
+// Primitives and odd inputs
+
+#[test]
+fn zero_area_triangles_measure_distance_to_their_segment() {
+    // Collinear corners: the triangle is the segment from (0,0,0) to (2,0,0).
+    let (a, b, c) = ([0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [1.0, 0.0, 0.0]);
+    for (p, want) in [
+        ([1.5f32, 1.0, 0.0], 1.0f32),
+        ([3.0, 0.0, 1.0], 2f32.sqrt()),
+        ([-1.0, 0.0, 0.0], 1.0),
+        ([0.5, -2.0, 0.0], 2.0),
+    ] {
+        let (d2, q, bary) = point_triangle_distance_squared(p, a, b, c);
+        assert!(
+            (d2.sqrt() - want).abs() < 1e-6,
+            "p {p:?}: {} vs {want}",
+            d2.sqrt()
+        );
+        let r: [f32; 3] = std::array::from_fn(|k| bary[0] * a[k] + bary[1] * b[k] + bary[2] * c[k]);
+        assert!(norm(sub(r, q)) < 1e-6);
+    }
+    // All three corners equal: a point.
+    let (d2, q, _) = point_triangle_distance_squared([0.0, 3.0, 4.0], [0.0; 3], [0.0; 3], [0.0; 3]);
+    assert_eq!((d2, q), (25.0, [0.0; 3]));
+}
+
+#[test]
+fn ray_triangle_hits_both_sides_and_misses_parallel_rays() {
+    let (a, b, c) = ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
+    let front = ray_triangle([0.25, 0.25, 1.0], [0.0, 0.0, -1.0], a, b, c).unwrap();
+    let back = ray_triangle([0.25, 0.25, -2.0], [0.0, 0.0, 1.0], a, b, c).unwrap();
+    assert!((front.0 - 1.0).abs() < 1e-6 && (back.0 - 2.0).abs() < 1e-6);
+    assert!((front.1[1] - 0.25).abs() < 1e-6 && (front.1[2] - 0.25).abs() < 1e-6);
+    assert!(ray_triangle([0.25, 0.25, 1.0], [1.0, 0.0, 0.0], a, b, c).is_none());
+    assert!(ray_triangle([0.9, 0.9, 1.0], [0.0, 0.0, -1.0], a, b, c).is_none());
+}
+
+#[test]
+fn bowtie_and_flipped_faces_do_not_panic() {
+    // Two triangles touching at one vertex (a non-manifold vertex), and a third glued to the
+    // second with opposite winding.
+    let pos = vec![
+        [0.0, 0.0, 0.0],
+        [1.0, 1.0, 0.0],
+        [1.0, -1.0, 0.0],
+        [-1.0, 1.0, 0.0],
+        [-1.0, -1.0, 0.0],
+        [-2.0, 0.0, 0.0],
+    ];
+    let faces = vec![[0, 2, 1], [0, 3, 4], [3, 4, 5]];
+    let s = Surface::from_triangles(pos, faces);
+    let t = topology(&s);
+    assert_eq!(t.non_manifold_edges, 0);
+    assert_eq!(
+        t.component_count, 2,
+        "a shared vertex does not connect components"
+    );
+    assert_eq!(t.face_neighbors[1][1], Some(2));
+    let boundary_vertices: usize = t.boundary_loops.iter().map(Vec::len).sum();
+    assert!(boundary_vertices >= 6);
+    assert_eq!(t.vertex_faces(0), &[0, 1]);
+}
