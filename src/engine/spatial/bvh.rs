@@ -20,6 +20,7 @@
 //! Written by hand: the crates that exist either lack exact point–triangle queries with filters
 //! or allocate per query.
 
+use glam::Vec3A;
 use rayon::prelude::*;
 
 use super::triangle::{closest_point_on_triangle, dot, ray_triangle, sub};
@@ -72,8 +73,8 @@ struct Node {
 /// Per-triangle build record: bounds and the face index.
 #[derive(Clone, Copy, Debug)]
 struct Prim {
-    lo: [f32; 3],
-    hi: [f32; 3],
+    lo: Vec3A,
+    hi: Vec3A,
     face: u32,
 }
 
@@ -82,6 +83,12 @@ impl Prim {
     #[inline(always)]
     fn centroid2(&self, axis: usize) -> f32 {
         self.lo[axis] + self.hi[axis]
+    }
+
+    /// Twice the box centroid.
+    #[inline(always)]
+    fn centroid2v(&self) -> Vec3A {
+        self.lo + self.hi
     }
 }
 
@@ -97,22 +104,20 @@ pub struct Bvh {
 
 #[derive(Clone, Copy)]
 struct Aabb {
-    lo: [f32; 3],
-    hi: [f32; 3],
+    lo: Vec3A,
+    hi: Vec3A,
 }
 
 impl Aabb {
     const EMPTY: Aabb = Aabb {
-        lo: [f32::INFINITY; 3],
-        hi: [f32::NEG_INFINITY; 3],
+        lo: Vec3A::INFINITY,
+        hi: Vec3A::NEG_INFINITY,
     };
 
     #[inline(always)]
-    fn grow(&mut self, lo: [f32; 3], hi: [f32; 3]) {
-        for k in 0..3 {
-            self.lo[k] = fmin(self.lo[k], lo[k]);
-            self.hi[k] = fmax(self.hi[k], hi[k]);
-        }
+    fn grow(&mut self, lo: Vec3A, hi: Vec3A) {
+        self.lo = self.lo.min(lo);
+        self.hi = self.hi.max(hi);
     }
 
     fn union(mut self, o: Aabb) -> Aabb {
@@ -122,15 +127,11 @@ impl Aabb {
 
     /// Half the surface area (0 for an empty box).
     fn half_area(&self) -> f32 {
-        let d = [
-            self.hi[0] - self.lo[0],
-            self.hi[1] - self.lo[1],
-            self.hi[2] - self.lo[2],
-        ];
-        if d[0] < 0.0 {
+        let d = self.hi - self.lo;
+        if d.x < 0.0 {
             return 0.0;
         }
-        d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+        d.x * d.y + d.y * d.z + d.z * d.x
     }
 }
 
@@ -158,7 +159,7 @@ fn fmax(a: f32, b: f32) -> f32 {
 fn bounds(prims: &[Prim]) -> (Aabb, Aabb) {
     let fold = |(mut b, mut c): (Aabb, Aabb), p: &Prim| {
         b.grow(p.lo, p.hi);
-        let m = [p.centroid2(0), p.centroid2(1), p.centroid2(2)];
+        let m = p.centroid2v();
         c.grow(m, m);
         (b, c)
     };
@@ -203,8 +204,8 @@ impl Bins {
 /// Maps doubled centroids to bins along each axis.
 #[derive(Clone, Copy)]
 struct Binner {
-    origin: [f32; 3],
-    scale: [f32; 3],
+    origin: Vec3A,
+    scale: Vec3A,
     /// Bins in use: fewer for small nodes, where the sweep would dominate.
     bins: usize,
 }
@@ -212,11 +213,11 @@ struct Binner {
 impl Binner {
     fn new(c: &Aabb, count: usize) -> Self {
         let bins = (count / 2).clamp(4, BINS);
-        let mut scale = [0.0; 3];
-        for (k, s) in scale.iter_mut().enumerate() {
+        let mut scale = Vec3A::ZERO;
+        for k in 0..3 {
             let ext = c.hi[k] - c.lo[k];
             if ext > 0.0 {
-                *s = bins as f32 * (1.0 - 1e-5) / ext;
+                scale[k] = bins as f32 * (1.0 - 1e-5) / ext;
             }
         }
         Binner {
@@ -234,11 +235,16 @@ impl Binner {
 
     fn fill(&self, prims: &[Prim]) -> Bins {
         let mut bins = Bins::empty();
+        let top = (self.bins - 1) as f32;
         for p in prims {
+            // Same arithmetic as `bin`, for the three axes at once.
+            let x = ((p.centroid2v() - self.origin) * self.scale)
+                .max(Vec3A::ZERO)
+                .min(Vec3A::splat(top));
+            let b = [x.x as usize, x.y as usize, x.z as usize];
             for k in 0..3 {
-                let b = self.bin(p, k);
-                bins.count[k][b] += 1;
-                bins.bounds[k][b].grow(p.lo, p.hi);
+                bins.count[k][b[k]] += 1;
+                bins.bounds[k][b[k]].grow(p.lo, p.hi);
             }
         }
         bins
@@ -295,7 +301,7 @@ impl Extent {
     #[inline(always)]
     fn grow(&mut self, p: &Prim) {
         self.bx.grow(p.lo, p.hi);
-        let m = [p.centroid2(0), p.centroid2(1), p.centroid2(2)];
+        let m = p.centroid2v();
         self.cb.grow(m, m);
     }
 
@@ -341,8 +347,8 @@ fn build_subtree(prims: &mut [Prim], ext: Extent, base: u32, depth: u32) -> Vec<
     );
     let mut nodes = Vec::with_capacity(1 + ln.len() + rn.len());
     nodes.push(Node {
-        lo: ext.bx.lo,
-        hi: ext.bx.hi,
+        lo: ext.bx.lo.to_array(),
+        hi: ext.bx.hi.to_array(),
         index: 1 + ln.len() as u32,
         count: 0,
     });
@@ -362,8 +368,8 @@ fn build_subtree(prims: &mut [Prim], ext: Extent, base: u32, depth: u32) -> Vec<
 fn build_into(prims: &mut [Prim], ext: Extent, base: u32, depth: u32, nodes: &mut Vec<Node>) {
     if prims.len() <= MAX_LEAF {
         nodes.push(Node {
-            lo: ext.bx.lo,
-            hi: ext.bx.hi,
+            lo: ext.bx.lo.to_array(),
+            hi: ext.bx.hi.to_array(),
             index: base,
             count: prims.len() as u32,
         });
@@ -372,8 +378,8 @@ fn build_into(prims: &mut [Prim], ext: Extent, base: u32, depth: u32, nodes: &mu
     let (mid, le, re) = split(prims, &ext, depth);
     let me = nodes.len();
     nodes.push(Node {
-        lo: ext.bx.lo,
-        hi: ext.bx.hi,
+        lo: ext.bx.lo.to_array(),
+        hi: ext.bx.hi.to_array(),
         index: 0,
         count: 0,
     });
@@ -485,8 +491,9 @@ impl Bvh {
             .enumerate()
             .map(|(i, f)| {
                 let [a, b, c] = f.map(|v| positions[v as usize]);
-                let lo = std::array::from_fn(|k| a[k].min(b[k]).min(c[k]));
-                let hi = std::array::from_fn(|k| a[k].max(b[k]).max(c[k]));
+                let (a, b, c) = (Vec3A::from(a), Vec3A::from(b), Vec3A::from(c));
+                let lo = a.min(b).min(c);
+                let hi = a.max(b).max(c);
                 Prim {
                     lo,
                     hi,
