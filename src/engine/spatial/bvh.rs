@@ -242,9 +242,9 @@ impl Binner {
                 .max(Vec3A::ZERO)
                 .min(Vec3A::splat(top));
             let b = [x.x as usize, x.y as usize, x.z as usize];
-            for k in 0..3 {
-                bins.count[k][b[k]] += 1;
-                bins.bounds[k][b[k]].grow(p.lo, p.hi);
+            for (k, &bk) in b.iter().enumerate() {
+                bins.count[k][bk] += 1;
+                bins.bounds[k][bk].grow(p.lo, p.hi);
             }
         }
         bins
