@@ -2,7 +2,7 @@
 //! boundary loops and components, every corner linked back to its primitive and vertex.
 //!
 //! Units are the asset's world units; faces wind counter-clockwise around their outward normal
-//! (see [`surface`] and [`topology`] for the details).
+//! (see [`surface`] and [`mod@topology`] for the details).
 
 pub mod surface;
 pub mod topology;

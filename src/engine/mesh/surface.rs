@@ -17,8 +17,8 @@
 //! - Order: faces are ordered by (instance, primitive, triangle); welded vertices by the first
 //!   corner that refers to them in that order.
 //! - Welding is greedy and sequential over the corners in that order: a vertex joins the nearest
-//!   already-created welded vertex within the tolerance (grid hashing with cells of the tolerance's
-//!   size), else it starts a new one at its own position. The result is therefore independent of the
+//!   already-created welded vertex within the tolerance (grid hashing with cells of four times the
+//!   tolerance), else it starts a new one at its own position. The result is therefore independent of the
 //!   thread count. With tolerance 0 only bit-identical positions merge (`-0.0 == 0.0`).
 //! - A triangle is degenerate when two of its corners weld to the same vertex, or when its area is
 //!   zero: `|(b - a) × (c - a)|` (in f64) at most `f32::EPSILON² · (longest edge)²`.

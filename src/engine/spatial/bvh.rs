@@ -1,9 +1,9 @@
 //! A bounding volume hierarchy over triangles with exact closest-point and ray-cast queries.
 //!
 //! Build: binned surface-area heuristic (Wald, *On fast Construction of SAH-based Bounding Volume
-//! Hierarchies*, 2007): 16 bins per axis over the triangle-box centroids, the split of least
-//! `area(left)·n_left + area(right)·n_right`, leaves of at most [`MAX_LEAF`] triangles. Nodes below
-//! depth 48 split at the object median instead, which bounds the depth (< 80) and so the fixed
+//! Hierarchies*, 2007): 16 bins per axis (4 to 16 for nodes under 32 triangles) over the
+//! triangle-box centroids, the split of least `area(left)·n_left + area(right)·n_right`, leaves of
+//! at most [`MAX_LEAF`] triangles. Nodes at depth 48 or more split at the object median instead, which bounds the depth (< 80) and so the fixed
 //! traversal stack. Large nodes bin in parallel and subtrees build in parallel (rayon); every
 //! reduction is an exact min/max or integer sum and every sort key is a total order, so the tree
 //! is identical for any thread count.
