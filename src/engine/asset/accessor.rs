@@ -30,33 +30,34 @@ pub struct ViewRange {
     pub stride: Option<usize>,
 }
 
-/// Validates every buffer view against the resolved buffers.
+/// Validates every buffer view against the buffers' declared `byteLength`s (ingest checks
+/// separately that each buffer's data has exactly that length).
 ///
 /// # Errors
 /// [`IngestError::UnresolvedReference`], [`IngestError::BufferViewOutOfRange`] or
 /// [`IngestError::InvalidStride`].
-pub fn check_views(root: &Root, buffers: &[Vec<u8>]) -> Result<Vec<ViewRange>, IngestError> {
+pub fn check_views(root: &Root, buffer_lengths: &[u64]) -> Result<Vec<ViewRange>, IngestError> {
     let mut out = Vec::with_capacity(root.buffer_views.len());
     for (i, v) in root.buffer_views.iter().enumerate() {
         let buffer = v.buffer.value();
-        let data = buffers
+        let data_len = *buffer_lengths
             .get(buffer)
             .ok_or(IngestError::UnresolvedReference {
                 path: format!("bufferViews[{i}].buffer"),
                 target: "buffers",
                 index: buffer,
-                count: buffers.len(),
+                count: buffer_lengths.len(),
             })?;
         let offset = v.byte_offset.map_or(0, |o| o.0);
         let len = v.byte_length.0;
         let end = offset.saturating_add(len);
-        if end > data.len() as u64 {
+        if end > data_len {
             return Err(IngestError::BufferViewOutOfRange {
                 view: i,
                 buffer,
                 offset,
                 end,
-                len: data.len() as u64,
+                len: data_len,
             });
         }
         if let Some(s) = v.byte_stride {
@@ -67,7 +68,7 @@ pub fn check_views(root: &Root, buffers: &[Vec<u8>]) -> Result<Vec<ViewRange>, I
                 });
             }
         }
-        // end <= data.len(), so both fit in usize.
+        // end <= data_len, the length of a buffer held in memory, so both fit in usize.
         out.push(ViewRange {
             buffer,
             offset: offset as usize,
@@ -485,7 +486,7 @@ mod tests {
         b[16] = 1;
         b[22..24].copy_from_slice(&65535u16.to_le_bytes());
         let buffers = vec![b];
-        let views = check_views(&r, &buffers).unwrap();
+        let views = check_views(&r, &[24]).unwrap();
         let l = layout(&r, &views, 0).unwrap();
         let v = read_vec::<2>(&l, &buffers).unwrap();
         assert_eq!(v, vec![[1.0, 0.0], [0.0, 1.0]]);
@@ -498,7 +499,7 @@ mod tests {
             "bufferViews":[{"buffer":0,"byteLength":12}],
             "accessors":[{"bufferView":0,"componentType":5126,"type":"VEC3","count":2147483648}]}"#,
         );
-        let views = check_views(&r, &[vec![0; 12]]).unwrap();
+        let views = check_views(&r, &[12]).unwrap();
         assert!(matches!(
             layout(&r, &views, 0),
             Err(IngestError::AccessorOutOfRange {

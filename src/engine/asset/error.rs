@@ -236,6 +236,18 @@ pub enum IngestError {
         /// Number of vertices.
         vertex_count: u64,
     },
+    /// An index equal to the maximum of its component type (a primitive restart value).
+    #[error("{path}: index {value} at position {position} of accessors[{accessor}] is the primitive restart value, which glTF forbids")]
+    PrimitiveRestartIndex {
+        /// JSON path of the indices.
+        path: String,
+        /// Accessor index.
+        accessor: usize,
+        /// Position in the index list.
+        position: u64,
+        /// The index value (255, 65535 or 4294967295).
+        value: u64,
+    },
     /// NaN or infinity in vertex data that must be finite.
     #[error("{path}: element {element} of accessors[{accessor}] is not finite")]
     NonFinite {
@@ -353,6 +365,7 @@ impl IngestError {
             UnequalCount { .. } => "unequal-count",
             MissingPosition { .. } => "missing-position",
             IndexOutOfRange { .. } => "index-out-of-range",
+            PrimitiveRestartIndex { .. } => "primitive-restart-index",
             NonFinite { .. } => "non-finite",
             TooManyVertices { .. } => "too-many-vertices",
             TooManyTriangles { .. } => "too-many-triangles",

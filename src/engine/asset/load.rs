@@ -148,11 +148,13 @@ fn load_unguarded(
     let mut warnings = Vec::new();
     let mut data_budget = limits.max_data_uri_bytes;
 
-    let buffers = load_buffers(&root, bin, base, blobs, &mut data_budget)?;
-    let views = accessor::check_views(&root, &buffers)?;
+    // Structure first (against the declared lengths), then the data (which must match them).
+    let declared: Vec<u64> = root.buffers.iter().map(|b| b.byte_length.0).collect();
+    let views = accessor::check_views(&root, &declared)?;
     let layouts = (0..root.accessors.len())
         .map(|i| accessor::layout(&root, &views, i))
         .collect::<Result<Vec<_>, _>>()?;
+    let buffers = load_buffers(&root, bin, base, blobs, &mut data_budget)?;
 
     let mut image_list = Vec::with_capacity(root.images.len());
     let mut formats = Vec::with_capacity(root.images.len());
@@ -697,6 +699,20 @@ fn read_meshes(
                             position: k as u64,
                             value: indices[k] as u64,
                             vertex_count: count,
+                        });
+                    }
+                    // §3.7.2.1: the maximum value of the component type (primitive restart) is not allowed.
+                    let restart = match l.component {
+                        C::U8 => 0xFF,
+                        C::U16 => 0xFFFF,
+                        _ => 0xFFFF_FFFF,
+                    };
+                    if let Some(k) = indices.iter().position(|&v| v == restart) {
+                        return Err(IngestError::PrimitiveRestartIndex {
+                            path: ipath,
+                            accessor: l.accessor,
+                            position: k as u64,
+                            value: restart as u64,
                         });
                     }
                     assemble(mode, indices.len(), |i| indices[i])

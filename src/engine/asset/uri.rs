@@ -136,11 +136,16 @@ pub fn decode_data_uri(
         }
         _ => (header, false),
     };
-    let mime = media
-        .split(';')
+    let mut parts = media.split(';');
+    let mime = parts
         .next()
         .filter(|m| !m.is_empty())
         .map(|m| m.to_ascii_lowercase());
+    if parts.any(|p| !p.contains('=')) {
+        return Err(invalid(
+            "data: uri has a media type parameter that is not name=value",
+        ));
+    }
     let estimate = if is_base64 {
         payload.len() as u64 / 4 * 3 + 3
     } else {
@@ -259,6 +264,11 @@ mod tests {
 
     #[test]
     fn data_uris_decode_with_cap() {
+        assert!(matches!(
+            decode_data_uri("data:a/b;;base64,AA==", "x", 5),
+            Err(IngestError::InvalidUri { .. })
+        ));
+        assert!(decode_data_uri("data:a/b;charset=x;base64,AA==", "x", 5).is_ok());
         let (mime, b) =
             decode_data_uri("data:application/octet-stream;base64,AAECAw==", "x", 100).unwrap();
         assert_eq!(mime.as_deref(), Some("application/octet-stream"));
