@@ -382,7 +382,10 @@ fn texture_transform_is_read_into_texture_refs() {
             .unwrap()
     };
     assert_eq!(by_name("Offset U").transform.unwrap().offset, [0.5, 0.0]);
-    assert!((by_name("Rotation").transform.unwrap().rotation - 0.392_699_1).abs() < 1e-6);
+    assert!(
+        (by_name("Rotation").transform.unwrap().rotation - std::f32::consts::FRAC_PI_8).abs()
+            < 1e-6
+    );
     let all = by_name("All").transform.unwrap();
     assert_eq!((all.offset, all.scale), ([-0.2, -0.1], [1.5, 1.5]));
     assert_eq!(by_name("Correct").transform, None);
@@ -450,8 +453,7 @@ fn attributes_colors_quantization_and_legacy_materials() {
     let world = p
         .positions
         .iter()
-        .map(|&v| inst.transform_point(v))
-        .flatten()
+        .flat_map(|&v| inst.transform_point(v))
         .fold(0f64, |m, x| m.max(x.abs()));
     assert!(world > 0.5 && world < 10.0, "world extent {world}");
     let m = ok("edge_multi_uv_test_khronos/glTF-Binary/MultiUVTest.glb");
@@ -580,4 +582,542 @@ fn derived_target_glbs_load() {
     }
     let sofa = ok("tgt_glam_velvet_sofa_khronos/glTF-Binary/GlamVelvetSofa.glb");
     assert_eq!((vertices(&sofa), triangles(&sofa)), (3118, 4196));
+}
+
+// ---------------------------------------------------------------------------------------------
+// Hand-built malicious inputs.
+
+/// A one-triangle glTF: `tri.bin` holds 3 f32 positions (36 bytes) then 3 u16 indices (6 bytes,
+/// padded to 8). `patch` edits the JSON before it is written.
+fn triangle(
+    patch: impl FnOnce(&mut serde_json::Value),
+    positions: [[f32; 3]; 3],
+    indices: [u16; 3],
+) -> BlobSet {
+    let mut bin = Vec::new();
+    for v in positions.iter().flatten() {
+        bin.extend_from_slice(&v.to_le_bytes());
+    }
+    for i in indices {
+        bin.extend_from_slice(&i.to_le_bytes());
+    }
+    bin.extend_from_slice(&[0, 0]);
+    let mut json = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "buffers": [{"uri": "tri.bin", "byteLength": 44}],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": 36},
+            {"buffer": 0, "byteOffset": 36, "byteLength": 6}
+        ],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "type": "VEC3", "count": 3},
+            {"bufferView": 1, "componentType": 5123, "type": "SCALAR", "count": 3}
+        ],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "nodes": [{"mesh": 0}],
+        "scenes": [{"nodes": [0]}]
+    });
+    patch(&mut json);
+    let mut blobs = BlobSet::new();
+    blobs.insert("tri.gltf", serde_json::to_vec(&json).unwrap());
+    blobs.insert("tri.bin", bin);
+    blobs
+}
+
+const TRI: [[f32; 3]; 3] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+
+fn load_tri(blobs: &BlobSet) -> Result<Asset, IngestError> {
+    load("tri.gltf", blobs, &IngestLimits::default())
+}
+
+/// A PNG whose IHDR claims `w` x `h` RGBA8 but whose data is a few bytes: a decompression bomb.
+fn bomb_png(w: u32, h: u32) -> Vec<u8> {
+    fn crc32(data: &[u8]) -> u32 {
+        let mut crc = 0xFFFF_FFFFu32;
+        for &b in data {
+            crc ^= b as u32;
+            for _ in 0..8 {
+                crc = if crc & 1 != 0 {
+                    (crc >> 1) ^ 0xEDB8_8320
+                } else {
+                    crc >> 1
+                };
+            }
+        }
+        !crc
+    }
+    let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut ihdr = b"IHDR".to_vec();
+    ihdr.extend_from_slice(&w.to_be_bytes());
+    ihdr.extend_from_slice(&h.to_be_bytes());
+    ihdr.extend_from_slice(&[8, 6, 0, 0, 0]);
+    for chunk in [
+        ihdr,
+        b"IDAT\x78\x9c\x63\x00\x00\x00\x01\x00\x01".to_vec(),
+        b"IEND".to_vec(),
+    ] {
+        out.extend_from_slice(&(chunk.len() as u32 - 4).to_be_bytes());
+        out.extend_from_slice(&chunk);
+        out.extend_from_slice(&crc32(&chunk).to_be_bytes());
+    }
+    out
+}
+
+#[test]
+fn the_plain_triangle_loads() {
+    let a = load_tri(&triangle(|_| {}, TRI, [0, 1, 2])).unwrap();
+    assert_eq!(a.primitives[0].triangles, [[0, 1, 2]]);
+    assert_eq!(a.instances.len(), 1);
+}
+
+#[test]
+fn decompression_bomb_png_is_refused_from_its_header() {
+    let mut blobs = triangle(
+        |j| {
+            j["images"] = serde_json::json!([{"uri": "bomb.png"}]);
+            j["textures"] = serde_json::json!([{"source": 0}]);
+            j["materials"] =
+                serde_json::json!([{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]);
+            j["meshes"][0]["primitives"][0]["material"] = 0.into();
+        },
+        TRI,
+        [0, 1, 2],
+    );
+    let png = bomb_png(100_000, 100_000);
+    assert!(png.len() < 100);
+    blobs.insert("bomb.png", png);
+    let e = load_tri(&blobs).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            IngestError::ImageTooLarge {
+                image: 0,
+                width: 100_000,
+                height: 100_000,
+                max: 16384
+            }
+        ),
+        "{e}"
+    );
+    // Under the side limit but over the pixel limit.
+    blobs.insert("bomb.png", bomb_png(16000, 16000));
+    let limits = IngestLimits {
+        max_image_pixels: 1 << 20,
+        ..IngestLimits::default()
+    };
+    let e = load("tri.gltf", &blobs, &limits).unwrap_err();
+    assert!(
+        matches!(e, IngestError::ImageTooLarge { max: 1_048_576, .. }),
+        "{e}"
+    );
+}
+
+#[test]
+fn glb_with_lying_chunk_lengths_is_refused() {
+    let json = br#"{"asset":{"version":"2.0"},"buffers":[{"byteLength":4}]}"#;
+    let mut json = json.to_vec();
+    while json.len() % 4 != 0 {
+        json.push(b' ');
+    }
+    let build = |json_len: u32, bin_len: u32| {
+        let mut g = b"glTF".to_vec();
+        g.extend_from_slice(&2u32.to_le_bytes());
+        g.extend_from_slice(&0u32.to_le_bytes());
+        g.extend_from_slice(&json_len.to_le_bytes());
+        g.extend_from_slice(&0x4E4F_534Au32.to_le_bytes());
+        g.extend_from_slice(&json);
+        g.extend_from_slice(&bin_len.to_le_bytes());
+        g.extend_from_slice(&0x004E_4942u32.to_le_bytes());
+        g.extend_from_slice(&[1, 2, 3, 4]);
+        let n = g.len() as u32;
+        g[8..12].copy_from_slice(&n.to_le_bytes());
+        g
+    };
+    let run = |bytes: Vec<u8>| {
+        let mut b = BlobSet::new();
+        b.insert("x.glb", bytes);
+        load("x.glb", &b, &IngestLimits::default())
+    };
+    let a = run(build(json.len() as u32, 4)).unwrap();
+    assert_eq!(a.buffers, [vec![1, 2, 3, 4]]);
+    for (jl, bl) in [
+        (json.len() as u32 + 4, 4),
+        (json.len() as u32, 8),
+        (u32::MAX, 4),
+        (json.len() as u32, u32::MAX - 3),
+    ] {
+        let e = run(build(jl, bl)).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                IngestError::Glb(
+                    GlbError::TruncatedChunkData { .. } | GlbError::TruncatedChunkHeader { .. }
+                )
+            ),
+            "{jl} {bl}: {e}"
+        );
+    }
+    let mut short = build(json.len() as u32, 4);
+    short.pop();
+    assert!(matches!(
+        run(short),
+        Err(IngestError::Glb(GlbError::LengthMismatch { .. }))
+    ));
+    // A GLB whose BIN chunk is shorter than the buffer's byteLength.
+    let mut b = build(json.len() as u32, 4);
+    let at = b
+        .windows(14)
+        .position(|w| w == b"\"byteLength\":4")
+        .unwrap()
+        + 13;
+    b[at] = b'8';
+    assert!(matches!(
+        run(b),
+        Err(IngestError::BufferLengthMismatch {
+            buffer: 0,
+            declared: 8,
+            actual: 4
+        })
+    ));
+}
+
+#[test]
+fn buffer_view_past_its_buffer_is_refused() {
+    let blobs = triangle(
+        |j| j["bufferViews"][1]["byteLength"] = 60.into(),
+        TRI,
+        [0, 1, 2],
+    );
+    let e = load_tri(&blobs).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            IngestError::BufferViewOutOfRange {
+                view: 1,
+                buffer: 0,
+                offset: 36,
+                end: 96,
+                len: 44
+            }
+        ),
+        "{e}"
+    );
+}
+
+#[test]
+fn index_out_of_range_is_refused_with_its_path() {
+    let e = load_tri(&triangle(|_| {}, TRI, [0, 1, 3])).unwrap_err();
+    assert!(
+        matches!(&e, IngestError::IndexOutOfRange { path, accessor: 1, position: 2, value: 3, vertex_count: 3 }
+            if path == "meshes[0].primitives[0].indices"),
+        "{e}"
+    );
+}
+
+#[test]
+fn nan_positions_are_refused() {
+    let e = load_tri(&triangle(
+        |_| {},
+        [[0.0; 3], [f32::NAN, 0.0, 0.0], [0.0; 3]],
+        [0, 1, 2],
+    ))
+    .unwrap_err();
+    assert!(
+        matches!(
+            e,
+            IngestError::NonFinite {
+                accessor: 0,
+                element: 1,
+                ..
+            }
+        ),
+        "{e}"
+    );
+    let e = load_tri(&triangle(
+        |j| j["nodes"][0]["scale"] = serde_json::json!([1e39, 1, 1]),
+        TRI,
+        [0, 1, 2],
+    ))
+    .unwrap_err();
+    assert!(
+        matches!(e, IngestError::NonFiniteTransform { node: 0 }),
+        "{e}"
+    );
+}
+
+#[test]
+fn uris_leaving_the_upload_are_forbidden() {
+    for uri in [
+        "../secret.bin",
+        "file:///etc/passwd",
+        "http://example.com/buffer.bin",
+        "https://x/y.bin",
+        "/etc/passwd",
+        "%2e%2e/secret.bin",
+    ] {
+        let mut blobs = triangle(|j| j["buffers"][0]["uri"] = uri.into(), TRI, [0, 1, 2]);
+        // Even a blob literally named like the escape must not be used.
+        blobs.insert("../secret.bin", vec![0; 44]);
+        let e = load_tri(&blobs).unwrap_err();
+        assert!(
+            matches!(&e, IngestError::ForbiddenUri { what, uri: u } if what == "buffers[0]" && u == uri),
+            "{uri}: {e}"
+        );
+        // The same for an image.
+        let blobs = triangle(
+            |j| j["images"] = serde_json::json!([{ "uri": uri }]),
+            TRI,
+            [0, 1, 2],
+        );
+        let e = load_tri(&blobs).unwrap_err();
+        assert!(
+            matches!(&e, IngestError::ForbiddenUri { what, .. } if what == "images[0]"),
+            "{uri}: {e}"
+        );
+    }
+    let e = load_tri(&triangle(
+        |j| j["buffers"][0]["uri"] = "other.bin".into(),
+        TRI,
+        [0, 1, 2],
+    ))
+    .unwrap_err();
+    assert!(
+        matches!(&e, IngestError::MissingFile { name, .. } if name == "other.bin"),
+        "{e}"
+    );
+}
+
+#[test]
+fn files_in_subfolders_resolve_relative_to_the_main_file() {
+    let flat = triangle(
+        |j| j["buffers"][0]["uri"] = "data/tri%20bin.bin".into(),
+        TRI,
+        [0, 1, 2],
+    );
+    let mut blobs = BlobSet::new();
+    blobs.insert("scene/main.gltf", flat.get("tri.gltf").unwrap().to_vec());
+    blobs.insert(
+        "scene/data/tri bin.bin",
+        flat.get("tri.bin").unwrap().to_vec(),
+    );
+    let a = load("scene/main.gltf", &blobs, &IngestLimits::default()).unwrap();
+    assert_eq!(a.primitives[0].positions, TRI);
+}
+
+#[test]
+fn huge_data_uri_is_refused_over_the_limit() {
+    use base64::Engine as _;
+    let payload = base64::engine::general_purpose::STANDARD.encode(vec![0u8; 1 << 20]);
+    let blobs = triangle(
+        |j| {
+            j["buffers"].as_array_mut().unwrap().push(serde_json::json!({"uri": format!("data:application/octet-stream;base64,{payload}"), "byteLength": 1 << 20}))
+        },
+        TRI,
+        [0, 1, 2],
+    );
+    assert!(load_tri(&blobs).is_ok());
+    let limits = IngestLimits {
+        max_data_uri_bytes: 1000,
+        ..IngestLimits::default()
+    };
+    let e = load("tri.gltf", &blobs, &limits).unwrap_err();
+    assert!(
+        matches!(&e, IngestError::DataUriTooLarge { what, max: 1000, .. } if what == "buffers[1]"),
+        "{e}"
+    );
+}
+
+#[test]
+fn huge_counts_are_refused_before_allocating() {
+    // 2^31 VEC3 floats would be 24 GiB; the view has 36 bytes.
+    let e = load_tri(&triangle(
+        |j| j["accessors"][0]["count"] = (1u64 << 31).into(),
+        TRI,
+        [0, 1, 2],
+    ))
+    .unwrap_err();
+    assert!(
+        matches!(
+            e,
+            IngestError::AccessorOutOfRange {
+                accessor: 0,
+                view: 0,
+                ..
+            }
+        ),
+        "{e}"
+    );
+    // Without a bufferView the accessor is zeros: the vertex limit stops it.
+    let e = load_tri(&triangle(
+        |j| {
+            j["accessors"][0] =
+                serde_json::json!({"componentType": 5126, "type": "VEC3", "count": 1u64 << 31});
+        },
+        TRI,
+        [0, 1, 2],
+    ))
+    .unwrap_err();
+    assert!(
+        matches!(
+            e,
+            IngestError::TooManyVertices {
+                max: 20_000_000,
+                ..
+            }
+        ),
+        "{e}"
+    );
+    // Huge index count without a bufferView: the triangle limit stops it.
+    let e = load_tri(&triangle(
+        |j| {
+            j["accessors"][1] =
+                serde_json::json!({"componentType": 5125, "type": "SCALAR", "count": 1u64 << 33})
+        },
+        TRI,
+        [0, 1, 2],
+    ))
+    .unwrap_err();
+    assert!(matches!(e, IngestError::TooManyTriangles { .. }), "{e}");
+    // Stride times count overflowing u64 is still a range error.
+    let e = load_tri(&triangle(
+        |j| {
+            j["bufferViews"][0]["byteStride"] = 252.into();
+            j["accessors"][0]["count"] = u64::MAX.into();
+        },
+        TRI,
+        [0, 1, 2],
+    ))
+    .unwrap_err();
+    assert!(matches!(e, IngestError::AccessorOutOfRange { .. }), "{e}");
+}
+
+#[test]
+fn other_limits_and_refusals() {
+    let blobs = triangle(|_| {}, TRI, [0, 1, 2]);
+    let tiny = |f: fn(&mut IngestLimits)| {
+        let mut l = IngestLimits::default();
+        f(&mut l);
+        load("tri.gltf", &blobs, &l).unwrap_err()
+    };
+    assert!(matches!(
+        tiny(|l| l.max_input_bytes = 10),
+        IngestError::InputTooLarge { .. }
+    ));
+    assert!(matches!(
+        tiny(|l| l.max_json_bytes = 10),
+        IngestError::JsonTooLarge { .. }
+    ));
+    assert!(matches!(
+        tiny(|l| l.max_vertices = 2),
+        IngestError::TooManyVertices { count: 3, max: 2 }
+    ));
+    assert!(matches!(
+        tiny(|l| l.max_triangles = 0),
+        IngestError::TooManyTriangles { .. }
+    ));
+    assert!(matches!(
+        tiny(|l| l.max_node_depth = 0),
+        IngestError::NodeTooDeep { node: 0, .. }
+    ));
+    assert!(matches!(
+        load("nope.gltf", &blobs, &IngestLimits::default()),
+        Err(IngestError::MissingMain { .. })
+    ));
+    for ext in [
+        "EXT_meshopt_compression",
+        "KHR_texture_basisu",
+        "EXT_texture_webp",
+        "ACME_unknown",
+    ] {
+        let e = load_tri(&triangle(
+            |j| j["extensionsRequired"] = serde_json::json!([ext]),
+            TRI,
+            [0, 1, 2],
+        ))
+        .unwrap_err();
+        assert!(
+            matches!(&e, IngestError::UnsupportedExtension(n) if n == ext),
+            "{e}"
+        );
+    }
+    let ok_exts = [
+        "KHR_texture_transform",
+        "KHR_mesh_quantization",
+        "KHR_materials_sheen",
+        "KHR_lights_punctual",
+    ];
+    assert!(load_tri(&triangle(
+        |j| j["extensionsRequired"] = serde_json::json!(ok_exts),
+        TRI,
+        [0, 1, 2]
+    ))
+    .is_ok());
+    let e = load_tri(&triangle(
+        |j| j["nodes"][0]["children"] = serde_json::json!([0]),
+        TRI,
+        [0, 1, 2],
+    ))
+    .unwrap_err();
+    assert!(
+        matches!(e, IngestError::InvalidNodeHierarchy { node: 0, .. }),
+        "{e}"
+    );
+    let e = load_tri(&triangle(
+        |j| j["accessors"][0]["type"] = "VEC2".into(),
+        TRI,
+        [0, 1, 2],
+    ))
+    .unwrap_err();
+    assert!(
+        matches!(e, IngestError::WrongAccessorType { accessor: 0, .. }),
+        "{e}"
+    );
+    let e = load_tri(&triangle(
+        |j| j["accessors"][0]["count"] = "three".into(),
+        TRI,
+        [0, 1, 2],
+    ))
+    .unwrap_err();
+    assert!(
+        matches!(&e, IngestError::InvalidDocument { path, .. } if path == "accessors[0]"),
+        "{e}"
+    );
+}
+
+#[test]
+fn texcoord_override_and_strips_fans_and_no_scene() {
+    // Two UV sets (both the positions' xy), base color via set 0 overridden to set 1 by the transform.
+    let a = load_tri(&triangle(
+        |j| {
+            j["accessors"].as_array_mut().unwrap().push(serde_json::json!(
+                {"bufferView": 0, "componentType": 5126, "type": "VEC2", "count": 3, "byteOffset": 0}));
+            j["bufferViews"][0]["byteStride"] = 12.into();
+            let prim = &mut j["meshes"][0]["primitives"][0];
+            prim["attributes"]["TEXCOORD_0"] = 2.into();
+            prim["attributes"]["TEXCOORD_1"] = 2.into();
+            prim["material"] = 0.into();
+            prim["mode"] = 6.into();
+            j["materials"] = serde_json::json!([{"pbrMetallicRoughness": {"baseColorFactor": [0.5, 0.5, 0.5, 1],
+                "baseColorTexture": {"index": 0, "texCoord": 0,
+                    "extensions": {"KHR_texture_transform": {"texCoord": 1, "scale": [2, 2]}}}}}]);
+            j["textures"] = serde_json::json!([{}]);
+            j.as_object_mut().unwrap().remove("scenes");
+        },
+        TRI,
+        [0, 1, 2],
+    ))
+    .unwrap();
+    let t = a.materials[0].base_color_texture.unwrap();
+    assert_eq!((t.tex_coord, t.transform.unwrap().scale), (1, [2.0, 2.0]));
+    assert_eq!(a.materials[0].base_color_factor, [0.5, 0.5, 0.5, 1.0]);
+    assert_eq!(a.textures[0].image, None);
+    let p = &a.primitives[0];
+    assert_eq!(
+        (p.mode, p.triangles.as_slice()),
+        (TriangleMode::Fan, &[[1, 2, 0]][..])
+    );
+    assert_eq!(p.tex_coords.len(), 2);
+    assert_eq!(p.tex_coords[1][1], [1.0, 0.0]);
+    // No scenes: every root node is instantiated.
+    assert_eq!(a.instances.len(), 1);
 }
