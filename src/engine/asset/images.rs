@@ -7,12 +7,21 @@
 //! color are decoded, with `image::Limits` (max width, height and allocation) as a second guard.
 //! glTF 2.0 core allows PNG and JPEG; the format is sniffed from the bytes (the JSON `mimeType`
 //! is only a hint, §3.8.2 says the bytes must match it).
+//!
+//! Textures (§3.8.3, sampler wrap modes §3.8.4) and the base-color part of materials (§3.9.2,
+//! with `KHR_texture_transform` and its texCoord override, and the archived
+//! `KHR_materials_pbrSpecularGlossiness` diffuse factor/texture) are read here too, since they
+//! decide which images get decoded.
 
 use std::io::Cursor;
 
 use image::{ImageFormat, ImageReader};
 
-use super::model::DecodedImage;
+use gltf::json::validation::Checked;
+use gltf::json::Root;
+use serde_json::Value;
+
+use super::model::{DecodedImage, Material, Sampler, Texture, TextureRef, UvTransform, Wrap};
 use super::{IngestError, IngestLimits};
 
 /// The format of encoded image bytes, by magic number: PNG or JPEG, else `None`.
@@ -110,6 +119,136 @@ pub fn decode_rgba8(
         height,
         pixels,
     })
+}
+
+fn wrap(mode: &Checked<gltf::json::texture::WrappingMode>) -> Wrap {
+    use gltf::json::texture::WrappingMode as W;
+    match mode {
+        Checked::Valid(W::ClampToEdge) => Wrap::ClampToEdge,
+        Checked::Valid(W::MirroredRepeat) => Wrap::MirroredRepeat,
+        _ => Wrap::Repeat,
+    }
+}
+
+/// Reads `textures` from the raw JSON (gltf-json would require `source`, which glTF does
+/// not), validating `source` and `sampler` references (§3.8.3, §3.8.4).
+pub(super) fn read_textures(json: &Value, root: &Root) -> Result<Vec<Texture>, IngestError> {
+    let Some(items) = json.get("textures") else {
+        return Ok(Vec::new());
+    };
+    let items = items
+        .as_array()
+        .ok_or_else(|| IngestError::InvalidDocument {
+            path: "textures".into(),
+            message: "is not an array".into(),
+        })?;
+    let mut out = Vec::with_capacity(items.len());
+    for (i, t) in items.iter().enumerate() {
+        let index =
+            |key: &str, target: &'static str, count: usize| -> Result<Option<usize>, IngestError> {
+                let Some(v) = t.get(key) else { return Ok(None) };
+                let idx = v.as_u64().ok_or_else(|| IngestError::InvalidDocument {
+                    path: format!("textures[{i}].{key}"),
+                    message: "is not a non-negative integer".into(),
+                })?;
+                if idx >= count as u64 {
+                    return Err(IngestError::UnresolvedReference {
+                        path: format!("textures[{i}].{key}"),
+                        target,
+                        index: usize::try_from(idx).unwrap_or(usize::MAX),
+                        count,
+                    });
+                }
+                Ok(Some(idx as usize))
+            };
+        let image = index("source", "images", root.images.len())?;
+        let sampler = match index("sampler", "samplers", root.samplers.len())? {
+            Some(s) => {
+                let s = &root.samplers[s];
+                Sampler {
+                    wrap_s: wrap(&s.wrap_s),
+                    wrap_t: wrap(&s.wrap_t),
+                    nearest: matches!(
+                        s.mag_filter,
+                        Some(Checked::Valid(gltf::json::texture::MagFilter::Nearest))
+                    ),
+                }
+            }
+            None => Sampler::default(),
+        };
+        out.push(Texture { image, sampler });
+    }
+    Ok(out)
+}
+
+fn texture_ref(
+    info: &gltf::json::texture::Info,
+    path: String,
+    textures: usize,
+) -> Result<TextureRef, IngestError> {
+    let texture = info.index.value();
+    if texture >= textures {
+        return Err(IngestError::UnresolvedReference {
+            path,
+            target: "textures",
+            index: texture,
+            count: textures,
+        });
+    }
+    let tt = info
+        .extensions
+        .as_ref()
+        .and_then(|e| e.texture_transform.as_ref());
+    let transform = tt.map(|t| UvTransform {
+        offset: t.offset.0,
+        rotation: t.rotation.0,
+        scale: t.scale.0,
+    });
+    let tex_coord = tt.and_then(|t| t.tex_coord).unwrap_or(info.tex_coord);
+    Ok(TextureRef {
+        texture,
+        tex_coord,
+        transform,
+    })
+}
+
+/// Reads each material's base color (§3.9.2), from `KHR_materials_pbrSpecularGlossiness`
+/// (diffuse factor and texture) when present, else `pbrMetallicRoughness`.
+pub(super) fn read_materials(root: &Root, textures: usize) -> Result<Vec<Material>, IngestError> {
+    let mut out = Vec::with_capacity(root.materials.len());
+    for (i, m) in root.materials.iter().enumerate() {
+        let pbr = &m.pbr_metallic_roughness;
+        let spec_gloss = m
+            .extensions
+            .as_ref()
+            .and_then(|e| e.pbr_specular_glossiness.as_ref());
+        let (factor, texture) = match spec_gloss {
+            Some(sg) => (
+                sg.diffuse_factor.0,
+                sg.diffuse_texture
+                    .as_ref()
+                    .map(|t| {
+                        let path = format!("materials[{i}].extensions.KHR_materials_pbrSpecularGlossiness.diffuseTexture.index");
+                        texture_ref(t, path, textures)
+                    })
+                    .transpose()?,
+            ),
+            None => (
+                pbr.base_color_factor.0,
+                pbr.base_color_texture
+                    .as_ref()
+                    .map(|t| texture_ref(t, format!("materials[{i}].pbrMetallicRoughness.baseColorTexture.index"), textures))
+                    .transpose()?,
+            ),
+        };
+        out.push(Material {
+            name: m.name.clone(),
+            base_color_factor: factor,
+            base_color_texture: texture,
+            double_sided: m.double_sided,
+        });
+    }
+    Ok(out)
 }
 
 #[cfg(test)]
