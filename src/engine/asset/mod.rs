@@ -12,4 +12,7 @@ pub mod load;
 pub mod model;
 pub mod uri;
 
+pub use blobs::BlobSet;
+pub use error::IngestError;
+pub use load::{load, IngestLimits};
 pub use model::*;
