@@ -8,7 +8,11 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 #[derive(Parser)]
-#[command(name = "retex", version, about = "Transfer surface appearance between meshes")]
+#[command(
+    name = "retex",
+    version,
+    about = "Transfer surface appearance between meshes"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -62,9 +66,23 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Transfer { source, target, constraints, method, out, artifacts, quiet } => {
-            cli::transfer::run(&cli::transfer::Args { source, target, constraints, method, out, artifacts, quiet })
-        }
+        Command::Transfer {
+            source,
+            target,
+            constraints,
+            method,
+            out,
+            artifacts,
+            quiet,
+        } => cli::transfer::run(&cli::transfer::Args {
+            source,
+            target,
+            constraints,
+            method,
+            out,
+            artifacts,
+            quiet,
+        }),
         Command::Inspect { file, json } => cli::inspect::run(&file, json),
         Command::Bench { assets, runs } => cli::bench::run(&assets, runs),
     };

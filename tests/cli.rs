@@ -15,7 +15,11 @@ fn transfer_writes_a_valid_model_and_artifacts() {
     let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/test-outputs/cli");
     std::fs::create_dir_all(&dir).unwrap();
     let constraints = dir.join("c.json");
-    std::fs::write(&constraints, br#"{"version": 1, "output": {"texture_size": 256}}"#).unwrap();
+    std::fs::write(
+        &constraints,
+        br#"{"version": 1, "output": {"texture_size": 256}}"#,
+    )
+    .unwrap();
     let out = dir.join("fox_on_fox.glb");
     let status = retex()
         .args(["transfer", "--quiet", "--source"])
@@ -35,7 +39,12 @@ fn transfer_writes_a_valid_model_and_artifacts() {
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(dir.join("artifacts/report.json")).unwrap()).unwrap();
     assert_eq!(report["method"], "project");
-    assert!(report["method_report"]["textures"][0]["covered"].as_u64().unwrap() > 0);
+    assert!(
+        report["method_report"]["textures"][0]["covered"]
+            .as_u64()
+            .unwrap()
+            > 0
+    );
 }
 
 #[test]
@@ -69,16 +78,26 @@ fn inspect_reports_counts_and_problems() {
         .arg(shared_asset("src_spot_keenan/spot_textured_derived.glb"))
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let d: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(d["meshes"][0]["primitives"][0]["vertices"], 3225);
     assert_eq!(d["meshes"][0]["primitives"][0]["triangles"], 5856);
-    assert_eq!(d["surface"]["vertices"], 2930, "welded across UV seams: {}", d["surface"]);
+    assert_eq!(
+        d["surface"]["vertices"], 2930,
+        "welded across UV seams: {}",
+        d["surface"]
+    );
     assert_eq!(d["surface"]["euler_characteristic"], 2);
     assert_eq!(d["materials"][0]["base_color_texture"]["width"], 1024);
     let text = retex()
         .arg("inspect")
-        .arg(shared_asset("tgt_demosthenes_bust_odedstein/demosthenes-low-res_derived.glb"))
+        .arg(shared_asset(
+            "tgt_demosthenes_bust_odedstein/demosthenes-low-res_derived.glb",
+        ))
         .output()
         .unwrap();
     let s = String::from_utf8_lossy(&text.stdout);

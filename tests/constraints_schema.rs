@@ -22,7 +22,10 @@ fn top_level_and_output_fields_match_the_code() {
     let out = serde_json::to_value(OutputOptions::default()).unwrap();
     assert_eq!(keys(&s["properties"]["output"]["properties"]), keys(&out));
     for (k, v) in out.as_object().unwrap() {
-        assert_eq!(&s["properties"]["output"]["properties"][k]["default"], v, "output.{k}");
+        assert_eq!(
+            &s["properties"]["output"]["properties"][k]["default"], v,
+            "output.{k}"
+        );
     }
 }
 
@@ -36,7 +39,9 @@ fn project_params_match_the_code() {
         if !v.is_null() {
             let d = &props[k]["default"];
             assert!(
-                d == v || (d.as_f64().is_some() && (d.as_f64().unwrap() - v.as_f64().unwrap()).abs() < 1e-9),
+                d == v
+                    || (d.as_f64().is_some()
+                        && (d.as_f64().unwrap() - v.as_f64().unwrap()).abs() < 1e-9),
                 "params.{k}: schema {d} vs code {v}"
             );
         }

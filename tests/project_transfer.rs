@@ -25,10 +25,20 @@ fn blobs_from_bytes(name: &str, bytes: Vec<u8>) -> (String, BlobSet) {
     (name.to_string(), b)
 }
 
-fn run(source: &(String, BlobSet), target: &(String, BlobSet), constraints: Constraints) -> Result<TransferOutput, TransferError> {
+fn run(
+    source: &(String, BlobSet),
+    target: &(String, BlobSet),
+    constraints: Constraints,
+) -> Result<TransferOutput, TransferError> {
     let input = TransferInput {
-        source: ModelInput { main: &source.0, blobs: &source.1 },
-        target: ModelInput { main: &target.0, blobs: &target.1 },
+        source: ModelInput {
+            main: &source.0,
+            blobs: &source.1,
+        },
+        target: ModelInput {
+            main: &target.0,
+            blobs: &target.1,
+        },
         constraints,
         limits: IngestLimits::default(),
     };
@@ -41,9 +51,16 @@ fn constraints(value: serde_json::Value) -> Constraints {
 
 /// The decoded base-color image of material `m`.
 fn base_color(asset: &Asset, m: usize) -> (u32, u32, Vec<[u8; 4]>) {
-    let t = asset.materials[m].base_color_texture.expect("material has a base color texture");
-    let img = asset.textures[t.texture].image.expect("texture has an image");
-    let d = asset.images[img].decoded.as_ref().expect("base color decoded");
+    let t = asset.materials[m]
+        .base_color_texture
+        .expect("material has a base color texture");
+    let img = asset.textures[t.texture]
+        .image
+        .expect("texture has an image");
+    let d = asset.images[img]
+        .decoded
+        .as_ref()
+        .expect("base color decoded");
     (d.width, d.height, d.pixels.clone())
 }
 
@@ -52,7 +69,11 @@ fn coverage(asset: &Asset, size: u32) -> Vec<bool> {
     let tris: Vec<[[f32; 2]; 3]> = asset
         .primitives
         .iter()
-        .flat_map(|p| p.triangles.iter().map(move |t| t.map(|v| p.tex_coords[0][v as usize])))
+        .flat_map(|p| {
+            p.triangles
+                .iter()
+                .map(move |t| t.map(|v| p.tex_coords[0][v as usize]))
+        })
         .collect();
     rasterize_uv_layout(&tris, size, size).mask()
 }
@@ -70,7 +91,12 @@ fn spot_psnr(out: &TransferOutput, name: &str) -> f64 {
 #[test]
 fn identity_on_spot_reproduces_the_texture() {
     let spot = blobs_of(&shared_asset(SPOT));
-    let out = run(&spot, &spot, constraints(json!({"version": 1, "output": {"texture_size": 1024}}))).unwrap();
+    let out = run(
+        &spot,
+        &spot,
+        constraints(json!({"version": 1, "output": {"texture_size": 1024}})),
+    )
+    .unwrap();
     let psnr = spot_psnr(&out, "identity_spot.glb");
     assert!(psnr >= 40.0, "identity PSNR {psnr:.2} dB");
 }
@@ -78,12 +104,21 @@ fn identity_on_spot_reproduces_the_texture() {
 #[test]
 fn coverage_report_adds_up() {
     let spot = blobs_of(&shared_asset(SPOT));
-    let out = run(&spot, &spot, constraints(json!({"version": 1, "output": {"texture_size": 256, "padding": 4}}))).unwrap();
+    let out = run(
+        &spot,
+        &spot,
+        constraints(json!({"version": 1, "output": {"texture_size": 256, "padding": 4}})),
+    )
+    .unwrap();
     let tex = &out.report.method_report["textures"][0];
     let n = |k: &str| tex[k].as_u64().unwrap();
     assert!(n("covered") > 256 * 256 / 4, "{tex}");
     assert!(n("unmatched") <= n("covered"));
-    assert_eq!(n("covered") - n("unmatched") + n("padded") + n("filled"), 256 * 256, "{tex}");
+    assert_eq!(
+        n("covered") - n("unmatched") + n("padded") + n("filled"),
+        256 * 256,
+        "{tex}"
+    );
     assert!(n("padded") > 0);
     assert_eq!(n("triangles"), 5856);
 }
@@ -93,14 +128,24 @@ fn round_trip_through_a_remeshed_copy_keeps_the_texture() {
     let spot = blobs_of(&shared_asset(SPOT));
     let remeshed = blobs_of(&shared_asset(SPOT_REMESHED));
     // A → B: B has no UVs, so the color goes to COLOR_0 on a refined copy.
-    let ab = run(&spot, &remeshed, constraints(json!({"version": 1, "params": {"vertex_color_samples": 400000}}))).unwrap();
+    let ab = run(
+        &spot,
+        &remeshed,
+        constraints(json!({"version": 1, "params": {"vertex_color_samples": 400000}})),
+    )
+    .unwrap();
     assert_validator_clean(&ab.model, "roundtrip_spot_to_remeshed.glb");
     let vc = &ab.report.method_report["vertex_colors"][0];
     assert_eq!(vc["refined"], true, "{vc}");
     assert!(vc["vertices"].as_u64().unwrap() >= 300_000, "{vc}");
     // B → A: sampled from B's COLOR_0.
     let b = blobs_from_bytes("b.glb", ab.model.clone());
-    let ba = run(&b, &spot, constraints(json!({"version": 1, "output": {"texture_size": 1024}}))).unwrap();
+    let ba = run(
+        &b,
+        &spot,
+        constraints(json!({"version": 1, "output": {"texture_size": 1024}})),
+    )
+    .unwrap();
     let psnr = spot_psnr(&ba, "roundtrip_back_to_spot.glb");
     assert!(psnr >= 30.0, "round trip PSNR {psnr:.2} dB");
 }
@@ -154,9 +199,21 @@ fn alignment_from_four_correspondences_transfers_like_the_unmoved_case() {
     let (c, si) = (angle.cos(), angle.sin());
     let [x, y, z] = axis;
     let r = [
-        [c + x * x * (1.0 - c), x * y * (1.0 - c) - z * si, x * z * (1.0 - c) + y * si],
-        [y * x * (1.0 - c) + z * si, c + y * y * (1.0 - c), y * z * (1.0 - c) - x * si],
-        [z * x * (1.0 - c) - y * si, z * y * (1.0 - c) + x * si, c + z * z * (1.0 - c)],
+        [
+            c + x * x * (1.0 - c),
+            x * y * (1.0 - c) - z * si,
+            x * z * (1.0 - c) + y * si,
+        ],
+        [
+            y * x * (1.0 - c) + z * si,
+            c + y * y * (1.0 - c),
+            y * z * (1.0 - c) - x * si,
+        ],
+        [
+            z * x * (1.0 - c) - y * si,
+            z * y * (1.0 - c) + x * si,
+            c + z * z * (1.0 - c),
+        ],
     ];
     let t = [3.0, -1.0, 2.0];
     let apply = |p: [f32; 3]| -> [f64; 3] {
@@ -193,16 +250,39 @@ fn alignment_from_four_correspondences_transfers_like_the_unmoved_case() {
                    "target": {"point": apply(prim.positions[i])}})
         })
         .collect();
-    let aligned = run(&spot, &moved, constraints(json!({"version": 1, "correspondences": corr, "output": {"texture_size": 1024}}))).unwrap();
+    let aligned = run(
+        &spot,
+        &moved,
+        constraints(
+            json!({"version": 1, "correspondences": corr, "output": {"texture_size": 1024}}),
+        ),
+    )
+    .unwrap();
     let al = &aligned.report.method_report["alignment"];
-    assert!((al["transform"]["scale"].as_f64().unwrap() - 2.5).abs() < 1e-3, "{al}");
+    assert!(
+        (al["transform"]["scale"].as_f64().unwrap() - 2.5).abs() < 1e-3,
+        "{al}"
+    );
     assert!(al["rms_error"].as_f64().unwrap() < 1e-3, "{al}");
     let psnr_aligned = spot_psnr(&aligned, "aligned_spot.glb");
-    let unmoved = run(&spot, &spot, constraints(json!({"version": 1, "output": {"texture_size": 1024}}))).unwrap();
+    let unmoved = run(
+        &spot,
+        &spot,
+        constraints(json!({"version": 1, "output": {"texture_size": 1024}})),
+    )
+    .unwrap();
     let psnr_unmoved = spot_psnr(&unmoved, "unmoved_spot.glb");
-    assert!(psnr_aligned >= 40.0 && psnr_aligned >= psnr_unmoved - 1.0, "aligned {psnr_aligned:.2} vs unmoved {psnr_unmoved:.2}");
+    assert!(
+        psnr_aligned >= 40.0 && psnr_aligned >= psnr_unmoved - 1.0,
+        "aligned {psnr_aligned:.2} vs unmoved {psnr_unmoved:.2}"
+    );
     // Without correspondences the moved target cannot be matched: the test above is meaningful.
-    let naive = run(&spot, &moved, constraints(json!({"version": 1, "output": {"texture_size": 1024}}))).unwrap();
+    let naive = run(
+        &spot,
+        &moved,
+        constraints(json!({"version": 1, "output": {"texture_size": 1024}})),
+    )
+    .unwrap();
     let psnr_naive = spot_psnr(&naive, "naive_moved_spot.glb");
     assert!(psnr_naive < 25.0, "naive {psnr_naive:.2}");
 }
@@ -210,10 +290,17 @@ fn alignment_from_four_correspondences_transfers_like_the_unmoved_case() {
 #[test]
 fn output_is_byte_identical_across_runs_and_thread_counts() {
     let spot = blobs_of(&shared_asset(SPOT));
-    let remeshed = blobs_of(&shared_asset("tgt_spot_remeshed_odedstein/spot_low_resolution_derived.glb"));
-    let c = constraints(json!({"version": 1, "output": {"texture_size": 256}, "params": {"vertex_color_samples": 20000}}));
+    let remeshed = blobs_of(&shared_asset(
+        "tgt_spot_remeshed_odedstein/spot_low_resolution_derived.glb",
+    ));
+    let c = constraints(
+        json!({"version": 1, "output": {"texture_size": 256}, "params": {"vertex_color_samples": 20000}}),
+    );
     let once = |threads: usize, target: &(String, BlobSet)| {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
         pool.install(|| run(&spot, target, c.clone()).unwrap().model)
     };
     for target in [&spot, &remeshed] {
@@ -227,7 +314,12 @@ fn output_is_byte_identical_across_runs_and_thread_counts() {
 #[test]
 fn gltf_output_with_embedded_buffers_validates() {
     let spot = blobs_of(&shared_asset(SPOT));
-    let out = run(&spot, &spot, constraints(json!({"version": 1, "output": {"texture_size": 128, "format": "gltf"}}))).unwrap();
+    let out = run(
+        &spot,
+        &spot,
+        constraints(json!({"version": 1, "output": {"texture_size": 128, "format": "gltf"}})),
+    )
+    .unwrap();
     assert_eq!(out.format, OutputFormat::Gltf);
     assert!(out.model.starts_with(b"{"));
     assert_validator_clean(&out.model, "spot_embedded.gltf");
@@ -238,8 +330,17 @@ fn gltf_output_with_embedded_buffers_validates() {
 #[test]
 fn gating_by_distance_leaves_far_texels_unmatched() {
     let spot = blobs_of(&shared_asset(SPOT));
-    let sphere = blobs_of(&shared_asset("tgt_primitives_odedstein_sphere/sphere_derived.glb"));
-    let out = run(&spot, &sphere, constraints(json!({"version": 1, "params": {"max_distance": 0.01, "vertex_color_samples": 5000}}))).unwrap();
+    let sphere = blobs_of(&shared_asset(
+        "tgt_primitives_odedstein_sphere/sphere_derived.glb",
+    ));
+    let out = run(
+        &spot,
+        &sphere,
+        constraints(
+            json!({"version": 1, "params": {"max_distance": 0.01, "vertex_color_samples": 5000}}),
+        ),
+    )
+    .unwrap();
     assert_validator_clean(&out.model, "gated_sphere.glb");
     let vc = &out.report.method_report["vertex_colors"][0];
     assert!(vc["unmatched"].as_u64().unwrap() > 0, "{vc}");
@@ -248,10 +349,23 @@ fn gating_by_distance_leaves_far_texels_unmatched() {
 #[test]
 fn bad_requests_fail_with_clear_errors() {
     let spot = blobs_of(&shared_asset(SPOT));
-    let e = run(&spot, &spot, constraints(json!({"version": 1, "method": "meshmatch"}))).unwrap_err();
+    let e = run(
+        &spot,
+        &spot,
+        constraints(json!({"version": 1, "method": "meshmatch"})),
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("not implemented"), "{e}");
-    let e = run(&spot, &spot, constraints(json!({"version": 1, "params": {"max_distanse": 1}}))).unwrap_err();
-    assert!(matches!(&e, TransferError::Constraints(c) if c.path.starts_with("params")), "{e}");
+    let e = run(
+        &spot,
+        &spot,
+        constraints(json!({"version": 1, "params": {"max_distanse": 1}})),
+    )
+    .unwrap_err();
+    assert!(
+        matches!(&e, TransferError::Constraints(c) if c.path.starts_with("params")),
+        "{e}"
+    );
     let far = json!({"version": 1, "correspondences": [
         {"source": {"point": [0.0, 0.0, 0.0]}, "target": {"point": [100.0, 0.0, 0.0]}},
         {"source": {"point": [0.0, 0.0, 0.0]}, "target": {"point": [0.0, 0.0, 0.0]}}]});
@@ -263,5 +377,9 @@ fn bad_requests_fail_with_clear_errors() {
     let idx = json!({"version": 1, "correspondences": [
         {"source": {"vertex": {"mesh": 0, "primitive": 0, "index": 99999999}}, "target": {"point": [0.0, 0.0, 0.0]}}]});
     let e = run(&spot, &spot, constraints(idx)).unwrap_err();
-    assert!(e.to_string().contains("correspondences[0].source.vertex.index"), "{e}");
+    assert!(
+        e.to_string()
+            .contains("correspondences[0].source.vertex.index"),
+        "{e}"
+    );
 }

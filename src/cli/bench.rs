@@ -26,26 +26,56 @@ struct Row {
     reference: String,
 }
 
-fn transfer_case(assets: &Path, src: &str, tgt: &str, runs: usize, input: &str, reference: &str) -> Result<Vec<Row>, String> {
+fn transfer_case(
+    assets: &Path,
+    src: &str,
+    tgt: &str,
+    runs: usize,
+    input: &str,
+    reference: &str,
+) -> Result<Vec<Row>, String> {
     let (sm, sb) = read(assets, src)?;
     let (tm, tb) = read(assets, tgt)?;
     let mut totals = Vec::new();
     let mut project = Vec::new();
     for _ in 0..runs {
         let ti = TransferInput {
-            source: ModelInput { main: &sm, blobs: &sb },
-            target: ModelInput { main: &tm, blobs: &tb },
+            source: ModelInput {
+                main: &sm,
+                blobs: &sb,
+            },
+            target: ModelInput {
+                main: &tm,
+                blobs: &tb,
+            },
             constraints: Constraints::default(),
             limits: IngestLimits::default(),
         };
         let t0 = Instant::now();
         let out = transfer(&ti, &Control::new()).map_err(|e| e.to_string())?;
         totals.push(t0.elapsed().as_secs_f64() * 1e3);
-        project.push(out.report.timings.iter().filter(|t| t.stage == "project").map(|t| t.ms).sum());
+        project.push(
+            out.report
+                .timings
+                .iter()
+                .filter(|t| t.stage == "project")
+                .map(|t| t.ms)
+                .sum(),
+        );
     }
     Ok(vec![
-        Row { stage: "project: surfaces + BVH + bake 2048² + pad".into(), input: input.into(), ms: median(project), reference: reference.into() },
-        Row { stage: "whole transfer (load → export)".into(), input: input.into(), ms: median(totals), reference: reference.into() },
+        Row {
+            stage: "project: surfaces + BVH + bake 2048² + pad".into(),
+            input: input.into(),
+            ms: median(project),
+            reference: reference.into(),
+        },
+        Row {
+            stage: "whole transfer (load → export)".into(),
+            input: input.into(),
+            ms: median(totals),
+            reference: reference.into(),
+        },
     ])
 }
 
@@ -85,7 +115,10 @@ pub fn run(assets: &Path, runs: usize) -> Result<(), String> {
     println!("| stage | input | retex (median of {runs}) | reference |");
     println!("|---|---|---|---|");
     for r in rows {
-        println!("| {} | {} | {:.0} ms | {} |", r.stage, r.input, r.ms, r.reference);
+        println!(
+            "| {} | {} | {:.0} ms | {} |",
+            r.stage, r.input, r.ms, r.reference
+        );
     }
     Ok(())
 }

@@ -15,16 +15,19 @@ pub fn describe(asset: &Asset) -> Value {
         while meshes.len() <= p.mesh {
             meshes.push(json!({"index": meshes.len(), "primitives": []}));
         }
-        meshes[p.mesh]["primitives"].as_array_mut().expect("array").push(json!({
-            "index": p.primitive,
-            "mode": format!("{:?}", p.mode).to_lowercase(),
-            "material": p.material,
-            "vertices": p.positions.len(),
-            "triangles": p.triangles.len(),
-            "uv_sets": p.tex_coords.len(),
-            "normals": p.normals.is_some(),
-            "vertex_colors": p.colors.is_some(),
-        }));
+        meshes[p.mesh]["primitives"]
+            .as_array_mut()
+            .expect("array")
+            .push(json!({
+                "index": p.primitive,
+                "mode": format!("{:?}", p.mode).to_lowercase(),
+                "material": p.material,
+                "vertices": p.positions.len(),
+                "triangles": p.triangles.len(),
+                "uv_sets": p.tex_coords.len(),
+                "normals": p.normals.is_some(),
+                "vertex_colors": p.colors.is_some(),
+            }));
     }
     let materials: Vec<Value> = asset
         .materials
@@ -84,7 +87,8 @@ pub fn describe(asset: &Asset) -> Value {
 /// Runs the command.
 pub fn run(path: &Path, as_json: bool) -> Result<(), String> {
     let (main, blobs) = BlobSet::from_path(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let asset = load(&main, &blobs, &IngestLimits::default()).map_err(|e| format!("{}: {e}", path.display()))?;
+    let asset = load(&main, &blobs, &IngestLimits::default())
+        .map_err(|e| format!("{}: {e}", path.display()))?;
     let d = describe(&asset);
     if as_json {
         println!("{}", serde_json::to_string_pretty(&d).expect("json"));
@@ -107,12 +111,25 @@ pub fn run(path: &Path, as_json: bool) -> Result<(), String> {
         let t = if tex.is_null() {
             "no base color texture".to_string()
         } else {
-            format!("base color image {} ({}x{}, TEXCOORD_{})", tex["image"], tex["width"], tex["height"], tex["tex_coord"])
+            format!(
+                "base color image {} ({}x{}, TEXCOORD_{})",
+                tex["image"], tex["width"], tex["height"], tex["tex_coord"]
+            )
         };
-        println!("  material {} {}: factor {}, {}", m["index"], m["name"], m["base_color_factor"], t);
+        println!(
+            "  material {} {}: factor {}, {}",
+            m["index"], m["name"], m["base_color_factor"], t
+        );
     }
     for i in d["images"].as_array().into_iter().flatten() {
-        println!("  image {}: {} {}x{}, {} bytes", i["index"], i["mime_type"].as_str().unwrap_or(""), i["width"], i["height"], i["bytes"]);
+        println!(
+            "  image {}: {} {}x{}, {} bytes",
+            i["index"],
+            i["mime_type"].as_str().unwrap_or(""),
+            i["width"],
+            i["height"],
+            i["bytes"]
+        );
     }
     let s = &d["surface"];
     if !s.is_null() {

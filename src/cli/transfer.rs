@@ -36,7 +36,11 @@ pub fn run(args: &Args) -> Result<(), String> {
         }
         None => {
             let mut c = Constraints::default();
-            if args.out.extension().is_some_and(|e| e.eq_ignore_ascii_case("gltf")) {
+            if args
+                .out
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("gltf"))
+            {
                 c.output.format = OutputFormat::Gltf;
             }
             c
@@ -46,15 +50,25 @@ pub fn run(args: &Args) -> Result<(), String> {
         constraints.method = MethodId::parse(m).map_err(|e| e.to_string())?;
     }
     let control = Control::new();
-    let bar = if args.quiet { ProgressBar::hidden() } else { ProgressBar::new(1000) };
+    let bar = if args.quiet {
+        ProgressBar::hidden()
+    } else {
+        ProgressBar::new(1000)
+    };
     bar.set_style(
         ProgressStyle::with_template("{spinner} {elapsed_precise} [{bar:40}] {percent:>3}% {msg}")
             .expect("valid template")
             .progress_chars("=> "),
     );
     let input = TransferInput {
-        source: ModelInput { main: &src_main, blobs: &src_blobs },
-        target: ModelInput { main: &tgt_main, blobs: &tgt_blobs },
+        source: ModelInput {
+            main: &src_main,
+            blobs: &src_blobs,
+        },
+        target: ModelInput {
+            main: &tgt_main,
+            blobs: &tgt_blobs,
+        },
         constraints,
         limits: IngestLimits::default(),
     };
@@ -63,13 +77,28 @@ pub fn run(args: &Args) -> Result<(), String> {
         while !worker.is_finished() {
             let p = control.progress();
             bar.set_position((p.fraction * 1000.0) as u64);
-            bar.set_message(format!("{} ({}/{})", p.stage, p.stages_done + 1, p.stages_total.max(1)));
+            bar.set_message(format!(
+                "{} ({}/{})",
+                p.stage,
+                p.stages_done + 1,
+                p.stages_total.max(1)
+            ));
             std::thread::sleep(Duration::from_millis(50));
         }
-        worker.join().unwrap_or_else(|_| Err(retex::engine::pipeline::TransferError::Cancelled))
+        match worker.join() {
+            Ok(r) => r.map_err(|e| e.to_string()),
+            Err(panic) => {
+                let msg = panic
+                    .downcast_ref::<String>()
+                    .cloned()
+                    .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+                    .unwrap_or_default();
+                Err(format!("internal error: {msg}"))
+            }
+        }
     });
     bar.finish_and_clear();
-    let output = result.map_err(|e| e.to_string())?;
+    let output = result?;
     std::fs::write(&args.out, &output.model).map_err(|e| format!("{}: {e}", args.out.display()))?;
     if let Some(dir) = &args.artifacts {
         std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
@@ -80,11 +109,26 @@ pub fn run(args: &Args) -> Result<(), String> {
     }
     if !args.quiet {
         let total: f64 = output.report.timings.iter().map(|t| t.ms).sum();
-        eprintln!("wrote {} ({} bytes) in {:.0} ms", args.out.display(), output.model.len(), total);
-        for w in output.report.source_warnings.iter().chain(&output.report.target_warnings) {
+        eprintln!(
+            "wrote {} ({} bytes) in {:.0} ms",
+            args.out.display(),
+            output.model.len(),
+            total
+        );
+        for w in output
+            .report
+            .source_warnings
+            .iter()
+            .chain(&output.report.target_warnings)
+        {
             eprintln!("warning: {w}");
         }
-        if let Some(ws) = output.report.method_report.get("warnings").and_then(|w| w.as_array()) {
+        if let Some(ws) = output
+            .report
+            .method_report
+            .get("warnings")
+            .and_then(|w| w.as_array())
+        {
             for w in ws.iter().filter_map(|w| w.as_str()) {
                 eprintln!("warning: {w}");
             }

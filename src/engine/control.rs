@@ -105,8 +105,16 @@ impl Control {
         let s = self.lock();
         let total = self.inner.total.load(Ordering::Relaxed);
         let done = self.inner.done.load(Ordering::Relaxed);
-        let stage_fraction = if total == 0 { 0.0 } else { (done as f64 / total as f64).min(1.0) };
-        let stages_done = if s.finished { s.started } else { s.started.saturating_sub(1) };
+        let stage_fraction = if total == 0 {
+            0.0
+        } else {
+            (done as f64 / total as f64).min(1.0)
+        };
+        let stages_done = if s.finished {
+            s.started
+        } else {
+            s.started.saturating_sub(1)
+        };
         let planned = s.planned.max(1);
         let fraction = if s.finished {
             1.0
@@ -170,7 +178,11 @@ mod tests {
         assert_eq!(p.stages_done, 1);
         assert!((p.fraction - 0.25).abs() < 1e-9);
         c.finish();
-        assert!((c.progress().fraction - 1.0).abs() < 1e-9, "{:?}", c.progress());
+        assert!(
+            (c.progress().fraction - 1.0).abs() < 1e-9,
+            "{:?}",
+            c.progress()
+        );
     }
 
     #[test]

@@ -4,8 +4,8 @@
 pub mod asset;
 pub mod control;
 pub mod mesh;
-pub mod multires;
 pub mod methods;
+pub mod multires;
 pub mod pipeline;
 pub mod spatial;
 pub mod texture;

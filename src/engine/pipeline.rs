@@ -132,7 +132,10 @@ impl From<ProjectError> for TransferError {
 }
 
 /// Runs a whole transfer under `control`.
-pub fn transfer(input: &TransferInput<'_>, control: &Control) -> Result<TransferOutput, TransferError> {
+pub fn transfer(
+    input: &TransferInput<'_>,
+    control: &Control,
+) -> Result<TransferOutput, TransferError> {
     let c = &input.constraints;
     c.validate()?;
     let params = match c.method {
@@ -144,16 +147,27 @@ pub fn transfer(input: &TransferInput<'_>, control: &Control) -> Result<Transfer
     let mut clock = Instant::now();
     let mut lap = |name: &str, timings: &mut Vec<StageTiming>| {
         let now = Instant::now();
-        timings.push(StageTiming { stage: name.to_string(), ms: (now - clock).as_secs_f64() * 1e3 });
+        timings.push(StageTiming {
+            stage: name.to_string(),
+            ms: (now - clock).as_secs_f64() * 1e3,
+        });
         clock = now;
     };
 
     control.stage("load", 2)?;
-    let source = load(input.source.main, input.source.blobs, &input.limits)
-        .map_err(|source| TransferError::Ingest { side: "source", source })?;
+    let source = load(input.source.main, input.source.blobs, &input.limits).map_err(|source| {
+        TransferError::Ingest {
+            side: "source",
+            source,
+        }
+    })?;
     control.check()?;
-    let target = load(input.target.main, input.target.blobs, &input.limits)
-        .map_err(|source| TransferError::Ingest { side: "target", source })?;
+    let target = load(input.target.main, input.target.blobs, &input.limits).map_err(|source| {
+        TransferError::Ingest {
+            side: "target",
+            source,
+        }
+    })?;
     lap("load", &mut timings);
 
     let (edits, report) = project::run(&source, &target, c, &params, control)?;
@@ -167,7 +181,11 @@ pub fn transfer(input: &TransferInput<'_>, control: &Control) -> Result<Transfer
     let mut artifacts: Vec<Artifact> = edits
         .textures
         .iter()
-        .map(|t| Artifact { name: format!("{}.png", t.name), media_type: "image/png", bytes: t.png.clone() })
+        .map(|t| Artifact {
+            name: format!("{}.png", t.name),
+            media_type: "image/png",
+            bytes: t.png.clone(),
+        })
         .collect();
     let report = TransferReport {
         method: c.method,
@@ -182,5 +200,10 @@ pub fn transfer(input: &TransferInput<'_>, control: &Control) -> Result<Transfer
         media_type: "application/json",
         bytes: serde_json::to_vec_pretty(&report).unwrap_or_default(),
     });
-    Ok(TransferOutput { model, format: c.output.format, report, artifacts })
+    Ok(TransferOutput {
+        model,
+        format: c.output.format,
+        report,
+        artifacts,
+    })
 }

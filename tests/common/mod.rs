@@ -14,7 +14,11 @@ pub fn shared_assets_dir() -> PathBuf {
 /// Path of a file under the shared asset folder; panics with a clear message when missing.
 pub fn shared_asset(relative: &str) -> PathBuf {
     let p = shared_assets_dir().join(relative);
-    assert!(p.exists(), "shared asset {} not found (set RETEX_SHARED_ASSETS)", p.display());
+    assert!(
+        p.exists(),
+        "shared asset {} not found (set RETEX_SHARED_ASSETS)",
+        p.display()
+    );
     p
 }
 
@@ -40,10 +44,18 @@ pub fn assert_validator_clean(bytes: &[u8], name: &str) {
         .arg(&file)
         .output()
         .expect("run node");
-    assert!(out.status.success(), "validator failed to run: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "validator failed to run: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let line = String::from_utf8_lossy(&out.stdout);
     let report: serde_json::Value = serde_json::from_str(line.trim()).expect("validator json");
-    assert_eq!(report["errors"], 0, "validator errors in {name}: {}", report["messages"]);
+    assert_eq!(
+        report["errors"], 0,
+        "validator errors in {name}: {}",
+        report["messages"]
+    );
 }
 
 /// Loads a model file from disk with default limits.

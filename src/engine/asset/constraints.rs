@@ -152,7 +152,12 @@ pub struct OutputOptions {
 
 impl Default for OutputOptions {
     fn default() -> Self {
-        Self { texture_size: 2048, padding: 16, vertex_colors: false, format: OutputFormat::Glb }
+        Self {
+            texture_size: 2048,
+            padding: 16,
+            vertex_colors: false,
+            format: OutputFormat::Glb,
+        }
     }
 }
 
@@ -213,7 +218,10 @@ pub struct ConstraintsError {
 impl ConstraintsError {
     /// An error at `path`.
     pub fn new(path: impl Into<String>, message: impl Into<String>) -> Self {
-        Self { path: path.into(), message: message.into() }
+        Self {
+            path: path.into(),
+            message: message.into(),
+        }
     }
 }
 
@@ -228,7 +236,10 @@ impl Constraints {
         if bytes.len() > MAX_CONSTRAINTS_BYTES {
             return Err(ConstraintsError::new(
                 ".",
-                format!("document of {} bytes exceeds the limit of {MAX_CONSTRAINTS_BYTES} bytes", bytes.len()),
+                format!(
+                    "document of {} bytes exceeds the limit of {MAX_CONSTRAINTS_BYTES} bytes",
+                    bytes.len()
+                ),
             ));
         }
         let de = &mut serde_json::Deserializer::from_slice(bytes);
@@ -243,7 +254,10 @@ impl Constraints {
     /// Checks ranges that serde cannot express.
     pub fn validate(&self) -> Result<(), ConstraintsError> {
         if self.version != 1 {
-            return Err(ConstraintsError::new("version", format!("unsupported version {}: only 1 is known", self.version)));
+            return Err(ConstraintsError::new(
+                "version",
+                format!("unsupported version {}: only 1 is known", self.version),
+            ));
         }
         let o = &self.output;
         if !(16..=8192).contains(&o.texture_size) {
@@ -253,7 +267,10 @@ impl Constraints {
             ));
         }
         if o.padding > 256 {
-            return Err(ConstraintsError::new("output.padding", format!("{} is outside the range 0..=256", o.padding)));
+            return Err(ConstraintsError::new(
+                "output.padding",
+                format!("{} is outside the range 0..=256", o.padding),
+            ));
         }
         if !self.params.is_object() {
             return Err(ConstraintsError::new("params", "must be an object"));
@@ -261,13 +278,19 @@ impl Constraints {
         if self.correspondences.len() > MAX_CORRESPONDENCES {
             return Err(ConstraintsError::new(
                 "correspondences",
-                format!("{} correspondences exceed the limit of {MAX_CORRESPONDENCES}", self.correspondences.len()),
+                format!(
+                    "{} correspondences exceed the limit of {MAX_CORRESPONDENCES}",
+                    self.correspondences.len()
+                ),
             ));
         }
         for (i, c) in self.correspondences.iter().enumerate() {
             check_ref(&c.source, &format!("correspondences[{i}].source"))?;
             if c.target.as_slice().is_empty() {
-                return Err(ConstraintsError::new(format!("correspondences[{i}].target"), "needs at least one place"));
+                return Err(ConstraintsError::new(
+                    format!("correspondences[{i}].target"),
+                    "needs at least one place",
+                ));
             }
             for (j, t) in c.target.as_slice().iter().enumerate() {
                 check_ref(t, &target_path(i, j, c.target.is_list()))?;
@@ -281,7 +304,11 @@ impl Constraints {
     pub fn method_params<P: serde::de::DeserializeOwned>(&self) -> Result<P, ConstraintsError> {
         serde_path_to_error::deserialize(&self.params).map_err(|e| {
             let inner = e.path().to_string();
-            let path = if inner == "." { "params".to_string() } else { format!("params.{inner}") };
+            let path = if inner == "." {
+                "params".to_string()
+            } else {
+                format!("params.{inner}")
+            };
             ConstraintsError::new(path, e.into_inner().to_string())
         })
     }
@@ -300,12 +327,16 @@ fn check_ref(r: &SurfaceRef, path: &str) -> Result<(), ConstraintsError> {
     match r {
         SurfaceRef::Point { point } => {
             if point.iter().any(|c| !c.is_finite()) {
-                return Err(ConstraintsError::new(format!("{path}.point"), "coordinates must be finite"));
+                return Err(ConstraintsError::new(
+                    format!("{path}.point"),
+                    "coordinates must be finite",
+                ));
             }
         }
         SurfaceRef::Triangle { barycentric, .. } => {
             let sum: f64 = barycentric.iter().sum();
-            if barycentric.iter().any(|b| !b.is_finite() || *b < -1e-6) || (sum - 1.0).abs() > 1e-3 {
+            if barycentric.iter().any(|b| !b.is_finite() || *b < -1e-6) || (sum - 1.0).abs() > 1e-3
+            {
                 return Err(ConstraintsError::new(
                     format!("{path}.barycentric"),
                     format!("{barycentric:?} is not a barycentric coordinate: each must be >= 0 and they must sum to 1"),
@@ -336,7 +367,10 @@ mod tests {
         let c = Constraints::from_json(json).unwrap();
         assert_eq!(c.correspondences.len(), 2);
         assert_eq!(c.correspondences[1].target.as_slice().len(), 2);
-        assert!(matches!(c.correspondences[1].target.as_slice()[1], SurfaceRef::Vertex { .. }));
+        assert!(matches!(
+            c.correspondences[1].target.as_slice()[1],
+            SurfaceRef::Vertex { .. }
+        ));
     }
 
     #[test]
@@ -351,9 +385,11 @@ mod tests {
     fn errors_name_the_json_path() {
         let e = Constraints::from_json(br#"{"version": 1, "method": "magic"}"#).unwrap_err();
         assert_eq!(e.path, "method");
-        let e = Constraints::from_json(br#"{"version": 1, "output": {"texture_size": 9000}}"#).unwrap_err();
+        let e = Constraints::from_json(br#"{"version": 1, "output": {"texture_size": 9000}}"#)
+            .unwrap_err();
         assert_eq!(e.path, "output.texture_size");
-        let e = Constraints::from_json(br#"{"version": 1, "output": {"colour": true}}"#).unwrap_err();
+        let e =
+            Constraints::from_json(br#"{"version": 1, "output": {"colour": true}}"#).unwrap_err();
         assert!(e.path.starts_with("output"), "{e}");
         let e = Constraints::from_json(
             br#"{"version": 1, "correspondences": [{"source": {"point": [0,0,0]}, "target": [{"point": [0,0,0]},
@@ -373,11 +409,13 @@ mod tests {
             #[allow(dead_code)]
             max_distance: Option<f32>,
         }
-        let c = Constraints::from_json(br#"{"version": 1, "params": {"max_distanse": 1}}"#).unwrap();
+        let c =
+            Constraints::from_json(br#"{"version": 1, "params": {"max_distanse": 1}}"#).unwrap();
         let e = c.method_params::<P>().unwrap_err();
         assert!(e.path.starts_with("params"), "{e}");
         assert!(e.message.contains("max_distanse"), "{e}");
-        let c = Constraints::from_json(br#"{"version": 1, "params": {"max_distance": "far"}}"#).unwrap();
+        let c = Constraints::from_json(br#"{"version": 1, "params": {"max_distance": "far"}}"#)
+            .unwrap();
         let e = c.method_params::<P>().unwrap_err();
         assert_eq!(e.path, "params.max_distance");
     }

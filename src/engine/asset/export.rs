@@ -126,7 +126,12 @@ impl Builder {
     }
 
     /// A float accessor of `N` components per element; `with_bounds` adds min/max (POSITION needs them).
-    fn push_f32<const N: usize>(&mut self, data: &[[f32; N]], ty: &str, with_bounds: bool) -> usize {
+    fn push_f32<const N: usize>(
+        &mut self,
+        data: &[[f32; N]],
+        ty: &str,
+        with_bounds: bool,
+    ) -> usize {
         let mut bytes = Vec::with_capacity(data.len() * N * 4);
         for v in data {
             for c in v {
@@ -134,7 +139,8 @@ impl Builder {
             }
         }
         let view = self.push_view(&bytes, Some(34962));
-        let mut acc = json!({"bufferView": view, "componentType": 5126, "count": data.len(), "type": ty});
+        let mut acc =
+            json!({"bufferView": view, "componentType": 5126, "count": data.len(), "type": ty});
         if with_bounds && !data.is_empty() {
             let mut lo = [f32::INFINITY; N];
             let mut hi = [f32::NEG_INFINITY; N];
@@ -168,7 +174,10 @@ impl Builder {
 
 /// Writes `asset` with `edits` applied, as GLB or .gltf with embedded buffers.
 pub fn export(asset: &Asset, edits: &Edits, format: OutputFormat) -> Result<Vec<u8>, ExportError> {
-    let mut b = Builder { bin: Vec::new(), json: asset.json.clone() };
+    let mut b = Builder {
+        bin: Vec::new(),
+        json: asset.json.clone(),
+    };
     if !b.json.is_object() {
         b.json = json!({"asset": {"version": "2.0"}});
     }
@@ -178,8 +187,17 @@ pub fn export(asset: &Asset, edits: &Edits, format: OutputFormat) -> Result<Vec<
         apply_texture(asset, &mut b, t)?;
     }
     for &m in &edits.untextured_materials {
-        let mat = b.json.pointer_mut(&format!("/materials/{m}")).ok_or(ExportError::BadEdit { what: "material", index: m })?;
-        if let Some(pbr) = mat.get_mut("pbrMetallicRoughness").and_then(Value::as_object_mut) {
+        let mat = b
+            .json
+            .pointer_mut(&format!("/materials/{m}"))
+            .ok_or(ExportError::BadEdit {
+                what: "material",
+                index: m,
+            })?;
+        if let Some(pbr) = mat
+            .get_mut("pbrMetallicRoughness")
+            .and_then(Value::as_object_mut)
+        {
             pbr.remove("baseColorTexture");
             pbr.insert("baseColorFactor".into(), json!([1.0, 1.0, 1.0, 1.0]));
         }
@@ -216,24 +234,43 @@ fn merge_buffers(asset: &Asset, b: &mut Builder) {
 }
 
 fn embed_images(asset: &Asset, b: &mut Builder) {
-    let count = b.json.get("images").and_then(Value::as_array).map_or(0, Vec::len);
+    let count = b
+        .json
+        .get("images")
+        .and_then(Value::as_array)
+        .map_or(0, Vec::len);
     for i in 0..count.min(asset.images.len()) {
         let has_uri = b.json["images"][i].get("uri").is_some();
         if !has_uri {
             continue;
         }
         let view = b.push_view(&asset.images[i].bytes, None);
-        let img = b.json["images"][i].as_object_mut().expect("image is an object");
+        let img = b.json["images"][i]
+            .as_object_mut()
+            .expect("image is an object");
         img.remove("uri");
         img.insert("bufferView".into(), json!(view));
         img.insert("mimeType".into(), json!(asset.images[i].mime_type));
     }
 }
 
-fn primitive_json<'a>(asset: &Asset, json: &'a mut Value, primitive: usize) -> Result<&'a mut Value, ExportError> {
-    let p = asset.primitives.get(primitive).ok_or(ExportError::BadEdit { what: "primitive", index: primitive })?;
+fn primitive_json<'a>(
+    asset: &Asset,
+    json: &'a mut Value,
+    primitive: usize,
+) -> Result<&'a mut Value, ExportError> {
+    let p = asset
+        .primitives
+        .get(primitive)
+        .ok_or(ExportError::BadEdit {
+            what: "primitive",
+            index: primitive,
+        })?;
     json.pointer_mut(&format!("/meshes/{}/primitives/{}", p.mesh, p.primitive))
-        .ok_or(ExportError::BadEdit { what: "primitive", index: primitive })
+        .ok_or(ExportError::BadEdit {
+            what: "primitive",
+            index: primitive,
+        })
 }
 
 /// Removes the legacy spec-gloss extension from a material that now carries metallic-roughness
@@ -241,13 +278,19 @@ fn primitive_json<'a>(asset: &Asset, json: &'a mut Value, primitive: usize) -> R
 fn drop_spec_gloss(mat: &mut Value) {
     if let Some(ext) = mat.get_mut("extensions").and_then(Value::as_object_mut) {
         if ext.remove("KHR_materials_pbrSpecularGlossiness").is_some() {
-            let pbr = mat.as_object_mut().expect("material object").entry("pbrMetallicRoughness").or_insert(json!({}));
+            let pbr = mat
+                .as_object_mut()
+                .expect("material object")
+                .entry("pbrMetallicRoughness")
+                .or_insert(json!({}));
             if pbr.get("metallicFactor").is_none() {
                 pbr["metallicFactor"] = json!(0.0);
             }
         }
         if mat["extensions"].as_object().is_some_and(Map::is_empty) {
-            mat.as_object_mut().expect("material object").remove("extensions");
+            mat.as_object_mut()
+                .expect("material object")
+                .remove("extensions");
         }
     }
 }
@@ -276,7 +319,10 @@ fn apply_texture(asset: &Asset, b: &mut Builder, t: &MaterialTexture) -> Result<
     let material = match t.material {
         Some(m) => {
             if b.json.pointer(&format!("/materials/{m}")).is_none() {
-                return Err(ExportError::BadEdit { what: "material", index: m });
+                return Err(ExportError::BadEdit {
+                    what: "material",
+                    index: m,
+                });
             }
             m
         }
@@ -297,7 +343,10 @@ fn apply_texture(asset: &Asset, b: &mut Builder, t: &MaterialTexture) -> Result<
     pbr["baseColorTexture"] = info;
     pbr["baseColorFactor"] = json!([1.0, 1.0, 1.0, 1.0]);
     for &p in &t.primitives {
-        if let Some(attrs) = primitive_json(asset, &mut b.json, p)?.get_mut("attributes").and_then(Value::as_object_mut) {
+        if let Some(attrs) = primitive_json(asset, &mut b.json, p)?
+            .get_mut("attributes")
+            .and_then(Value::as_object_mut)
+        {
             attrs.remove("COLOR_0");
         }
     }
@@ -326,7 +375,8 @@ fn apply_refined(asset: &Asset, b: &mut Builder, r: &RefinedPrimitive) -> Result
 /// Drops `KHR_texture_transform` and `KHR_materials_pbrSpecularGlossiness` from
 /// extensionsUsed/Required when nothing uses them any more.
 fn clean_extension_lists(json: &mut Value) {
-    let text = serde_json::to_string(json.get("materials").unwrap_or(&Value::Null)).unwrap_or_default()
+    let text = serde_json::to_string(json.get("materials").unwrap_or(&Value::Null))
+        .unwrap_or_default()
         + &serde_json::to_string(json.get("textures").unwrap_or(&Value::Null)).unwrap_or_default();
     for name in ["KHR_materials_pbrSpecularGlossiness"] {
         if !text.contains(&format!("\"{name}\"")) {
@@ -338,7 +388,11 @@ fn clean_extension_lists(json: &mut Value) {
         }
     }
     for key in ["extensionsUsed", "extensionsRequired"] {
-        if json.get(key).and_then(Value::as_array).is_some_and(Vec::is_empty) {
+        if json
+            .get(key)
+            .and_then(Value::as_array)
+            .is_some_and(Vec::is_empty)
+        {
             json.as_object_mut().expect("root object").remove(key);
         }
     }
@@ -372,7 +426,9 @@ fn finish(mut b: Builder, format: OutputFormat) -> Result<Vec<u8>, ExportError> 
     let bin_chunk = if b.bin.is_empty() { 0 } else { 8 + b.bin.len() };
     let total = 12 + 8 + text.len() + bin_chunk;
     if total as u64 > u32::MAX as u64 {
-        return Err(ExportError::TooLarge { bytes: total as u64 });
+        return Err(ExportError::TooLarge {
+            bytes: total as u64,
+        });
     }
     let mut out = Vec::with_capacity(total);
     out.extend_from_slice(b"glTF");

@@ -106,7 +106,11 @@ pub struct UvTransform {
 
 impl Default for UvTransform {
     fn default() -> Self {
-        Self { offset: [0.0, 0.0], rotation: 0.0, scale: [1.0, 1.0] }
+        Self {
+            offset: [0.0, 0.0],
+            rotation: 0.0,
+            scale: [1.0, 1.0],
+        }
     }
 }
 
@@ -137,7 +141,12 @@ pub struct Material {
 
 impl Default for Material {
     fn default() -> Self {
-        Self { name: None, base_color_factor: [1.0; 4], base_color_texture: None, double_sided: false }
+        Self {
+            name: None,
+            base_color_factor: [1.0; 4],
+            base_color_texture: None,
+            double_sided: false,
+        }
     }
 }
 
@@ -212,14 +221,22 @@ impl MeshInstance {
 impl Asset {
     /// Indices into [`Asset::primitives`] of the primitives of glTF mesh `mesh`.
     pub fn primitives_of_mesh(&self, mesh: usize) -> impl Iterator<Item = usize> + '_ {
-        self.primitives.iter().enumerate().filter(move |(_, p)| p.mesh == mesh).map(|(i, _)| i)
+        self.primitives
+            .iter()
+            .enumerate()
+            .filter(move |(_, p)| p.mesh == mesh)
+            .map(|(i, _)| i)
     }
 
     /// Total triangle count over all instances (what the Surface will hold before welding).
     pub fn instanced_triangle_count(&self) -> usize {
         self.instances
             .iter()
-            .map(|inst| self.primitives_of_mesh(inst.mesh).map(|p| self.primitives[p].triangles.len()).sum::<usize>())
+            .map(|inst| {
+                self.primitives_of_mesh(inst.mesh)
+                    .map(|p| self.primitives[p].triangles.len())
+                    .sum::<usize>()
+            })
             .sum()
     }
 }

@@ -24,7 +24,11 @@ pub struct Similarity {
 
 impl Default for Similarity {
     fn default() -> Self {
-        Self { scale: 1.0, rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], translation: [0.0; 3] }
+        Self {
+            scale: 1.0,
+            rotation: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            translation: [0.0; 3],
+        }
     }
 }
 
@@ -34,7 +38,8 @@ impl Similarity {
         let r = &self.rotation;
         let mut out = [0.0; 3];
         for (i, o) in out.iter_mut().enumerate() {
-            *o = self.scale * (r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2]) + self.translation[i];
+            *o = self.scale * (r[i][0] * p[0] + r[i][1] * p[1] + r[i][2] * p[2])
+                + self.translation[i];
         }
         out
     }
@@ -44,7 +49,11 @@ impl Similarity {
         if from.is_empty() {
             return 0.0;
         }
-        let sum: f64 = from.iter().zip(to).map(|(a, b)| dist2(self.apply(*a), *b)).sum();
+        let sum: f64 = from
+            .iter()
+            .zip(to)
+            .map(|(a, b)| dist2(self.apply(*a), *b))
+            .sum();
         (sum / from.len() as f64).sqrt()
     }
 }
@@ -75,7 +84,10 @@ pub fn best_similarity(from: &[[f64; 3]], to: &[[f64; 3]]) -> Similarity {
     let ca = centroid(from);
     let cb = centroid(to);
     if n == 1 {
-        return Similarity { translation: [cb[0] - ca[0], cb[1] - ca[1], cb[2] - ca[2]], ..Similarity::default() };
+        return Similarity {
+            translation: [cb[0] - ca[0], cb[1] - ca[1], cb[2] - ca[2]],
+            ..Similarity::default()
+        };
     }
     // Cross-covariance S[i][j] = Σ a'_i b'_j.
     let mut s = [[0.0f64; 3]; 3];
@@ -91,7 +103,10 @@ pub fn best_similarity(from: &[[f64; 3]], to: &[[f64; 3]]) -> Similarity {
         norm_a += a[0] * a[0] + a[1] * a[1] + a[2] * a[2];
     }
     if norm_a <= f64::MIN_POSITIVE {
-        return Similarity { translation: [cb[0] - ca[0], cb[1] - ca[1], cb[2] - ca[2]], ..Similarity::default() };
+        return Similarity {
+            translation: [cb[0] - ca[0], cb[1] - ca[1], cb[2] - ca[2]],
+            ..Similarity::default()
+        };
     }
     let (sxx, sxy, sxz) = (s[0][0], s[0][1], s[0][2]);
     let (syx, syy, syz) = (s[1][0], s[1][1], s[1][2]);
@@ -119,7 +134,11 @@ pub fn best_similarity(from: &[[f64; 3]], to: &[[f64; 3]]) -> Similarity {
         let rc = rotation[i][0] * ca[0] + rotation[i][1] * ca[1] + rotation[i][2] * ca[2];
         translation[i] = cb[i] - scale * rc;
     }
-    Similarity { scale, rotation, translation }
+    Similarity {
+        scale,
+        rotation,
+        translation,
+    }
 }
 
 /// Eigenvector of the largest eigenvalue of a symmetric 4x4 matrix (cyclic Jacobi).
@@ -129,7 +148,10 @@ fn largest_eigenvector(mut a: [[f64; 4]; 4]) -> [f64; 4] {
         row[i] = 1.0;
     }
     for _sweep in 0..64 {
-        let off: f64 = (0..4).flat_map(|i| ((i + 1)..4).map(move |j| (i, j))).map(|(i, j)| a[i][j] * a[i][j]).sum();
+        let off: f64 = (0..4)
+            .flat_map(|i| ((i + 1)..4).map(move |j| (i, j)))
+            .map(|(i, j)| a[i][j] * a[i][j])
+            .sum();
         if off < 1e-30 {
             break;
         }
@@ -178,9 +200,21 @@ fn largest_eigenvector(mut a: [[f64; 4]; 4]) -> [f64; 4] {
 fn quaternion_to_matrix(q: [f64; 4]) -> [[f64; 3]; 3] {
     let [w, x, y, z] = q;
     [
-        [w * w + x * x - y * y - z * z, 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-        [2.0 * (x * y + w * z), w * w - x * x + y * y - z * z, 2.0 * (y * z - w * x)],
-        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), w * w - x * x - y * y + z * z],
+        [
+            w * w + x * x - y * y - z * z,
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            w * w - x * x + y * y - z * z,
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            w * w - x * x - y * y + z * z,
+        ],
     ]
 }
 
@@ -202,13 +236,21 @@ mod tests {
             rotation: rot_axis_angle([0.3, -1.0, 0.4], 2.1),
             translation: [10.0, -3.0, 0.5],
         };
-        let from = [[0.0, 0.0, 0.0], [1.0, 0.2, 0.0], [0.1, 1.0, 0.3], [0.2, -0.4, 1.0]];
+        let from = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.2, 0.0],
+            [0.1, 1.0, 0.3],
+            [0.2, -0.4, 1.0],
+        ];
         let to: Vec<[f64; 3]> = from.iter().map(|p| truth.apply(*p)).collect();
         let est = best_similarity(&from, &to);
         assert!((est.scale - 2.5).abs() < 1e-9, "{est:?}");
         for i in 0..3 {
             for j in 0..3 {
-                assert!((est.rotation[i][j] - truth.rotation[i][j]).abs() < 1e-9, "{est:?}");
+                assert!(
+                    (est.rotation[i][j] - truth.rotation[i][j]).abs() < 1e-9,
+                    "{est:?}"
+                );
             }
         }
         assert!(est.rms_error(&from, &to) < 1e-9);
@@ -216,12 +258,25 @@ mod tests {
 
     #[test]
     fn handles_a_half_turn_and_noise() {
-        let truth = Similarity { scale: 0.5, rotation: rot_axis_angle([0.0, 1.0, 0.0], std::f64::consts::PI), translation: [1.0, 2.0, 3.0] };
-        let from: Vec<[f64; 3]> = (0..20).map(|i| { let t = i as f64; [t.sin() * 3.0, (t * 0.7).cos(), t * 0.1] }).collect();
-        let to: Vec<[f64; 3]> = from.iter().enumerate().map(|(i, p)| {
-            let q = truth.apply(*p);
-            [q[0] + 1e-3 * (i as f64).sin(), q[1], q[2]]
-        }).collect();
+        let truth = Similarity {
+            scale: 0.5,
+            rotation: rot_axis_angle([0.0, 1.0, 0.0], std::f64::consts::PI),
+            translation: [1.0, 2.0, 3.0],
+        };
+        let from: Vec<[f64; 3]> = (0..20)
+            .map(|i| {
+                let t = i as f64;
+                [t.sin() * 3.0, (t * 0.7).cos(), t * 0.1]
+            })
+            .collect();
+        let to: Vec<[f64; 3]> = from
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let q = truth.apply(*p);
+                [q[0] + 1e-3 * (i as f64).sin(), q[1], q[2]]
+            })
+            .collect();
         let est = best_similarity(&from, &to);
         assert!((est.scale - 0.5).abs() < 1e-3);
         assert!(est.rms_error(&from, &to) < 2e-3);

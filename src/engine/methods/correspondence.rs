@@ -5,7 +5,9 @@
 //! A point farther than the snap tolerance, or an index out of range, is an error naming the JSON
 //! path. Triangle and vertex places use the first scene instance of their mesh.
 
-use crate::engine::asset::constraints::{target_path, ConstraintsError, Correspondence, SurfaceRef};
+use crate::engine::asset::constraints::{
+    target_path, ConstraintsError, Correspondence, SurfaceRef,
+};
 use crate::engine::asset::Asset;
 use crate::engine::spatial::Bvh;
 
@@ -63,7 +65,11 @@ pub fn resolve(
 }
 
 /// The world-space point a place names, before snapping.
-pub fn world_point(r: &SurfaceRef, asset: &Asset, path: &str) -> Result<[f64; 3], ConstraintsError> {
+pub fn world_point(
+    r: &SurfaceRef,
+    asset: &Asset,
+    path: &str,
+) -> Result<[f64; 3], ConstraintsError> {
     let find = |mesh: usize, primitive: usize| {
         let p = asset
             .primitives
@@ -75,20 +81,35 @@ pub fn world_point(r: &SurfaceRef, asset: &Asset, path: &str) -> Result<[f64; 3]
                     format!("mesh {mesh} has no triangle primitive {primitive}"),
                 )
             })?;
-        let inst = asset.instances.iter().find(|i| i.mesh == mesh).ok_or_else(|| {
-            ConstraintsError::new(format!("{path}.mesh"), format!("mesh {mesh} is not used by the scene"))
-        })?;
+        let inst = asset
+            .instances
+            .iter()
+            .find(|i| i.mesh == mesh)
+            .ok_or_else(|| {
+                ConstraintsError::new(
+                    format!("{path}.mesh"),
+                    format!("mesh {mesh} is not used by the scene"),
+                )
+            })?;
         Ok::<_, ConstraintsError>((p, inst))
     };
     match r {
         SurfaceRef::Point { point } => Ok(*point),
-        SurfaceRef::Triangle { mesh, primitive, triangle, barycentric } => {
+        SurfaceRef::Triangle {
+            mesh,
+            primitive,
+            triangle,
+            barycentric,
+        } => {
             let (p, inst) = find(*mesh, *primitive)?;
             let prim = &asset.primitives[p];
             let tri = prim.triangles.get(*triangle).ok_or_else(|| {
                 ConstraintsError::new(
                     format!("{path}.triangle"),
-                    format!("triangle {triangle} is out of range: the primitive has {} triangles", prim.triangles.len()),
+                    format!(
+                        "triangle {triangle} is out of range: the primitive has {} triangles",
+                        prim.triangles.len()
+                    ),
                 )
             })?;
             let mut out = [0.0; 3];
@@ -106,7 +127,11 @@ pub fn world_point(r: &SurfaceRef, asset: &Asset, path: &str) -> Result<[f64; 3]
             let pos = prim.positions.get(vertex.index).ok_or_else(|| {
                 ConstraintsError::new(
                     format!("{path}.vertex.index"),
-                    format!("vertex {} is out of range: the primitive has {} vertices", vertex.index, prim.positions.len()),
+                    format!(
+                        "vertex {} is out of range: the primitive has {} vertices",
+                        vertex.index,
+                        prim.positions.len()
+                    ),
                 )
             })?;
             Ok(inst.transform_point(*pos))
@@ -114,17 +139,35 @@ pub fn world_point(r: &SurfaceRef, asset: &Asset, path: &str) -> Result<[f64; 3]
     }
 }
 
-fn resolve_ref(r: &SurfaceRef, side: &Side<'_>, path: &str) -> Result<SurfacePoint, ConstraintsError> {
+fn resolve_ref(
+    r: &SurfaceRef,
+    side: &Side<'_>,
+    path: &str,
+) -> Result<SurfacePoint, ConstraintsError> {
     let w = world_point(r, side.asset, path)?;
     let p = [w[0] as f32, w[1] as f32, w[2] as f32];
-    let hit = side.bvh.closest_point(p, f32::INFINITY).ok_or_else(|| ConstraintsError::new(path, "the mesh has no surface"))?;
+    let hit = side
+        .bvh
+        .closest_point(p, f32::INFINITY)
+        .ok_or_else(|| ConstraintsError::new(path, "the mesh has no surface"))?;
     let d = hit.distance_squared.sqrt();
     if d > side.tolerance {
-        let field = if matches!(r, SurfaceRef::Point { .. }) { format!("{path}.point") } else { path.to_string() };
+        let field = if matches!(r, SurfaceRef::Point { .. }) {
+            format!("{path}.point")
+        } else {
+            path.to_string()
+        };
         return Err(ConstraintsError::new(
             field,
-            format!("point is {d:.6} from the surface, farther than the snap tolerance of {:.6}", side.tolerance),
+            format!(
+                "point is {d:.6} from the surface, farther than the snap tolerance of {:.6}",
+                side.tolerance
+            ),
         ));
     }
-    Ok(SurfacePoint { face: hit.face, bary: hit.bary, position: hit.point })
+    Ok(SurfacePoint {
+        face: hit.face,
+        bary: hit.bary,
+        position: hit.point,
+    })
 }

@@ -69,7 +69,8 @@ impl ProjectParams {
     /// Reads and range-checks the parameters from the constraints' `params`.
     pub fn from_constraints(c: &Constraints) -> Result<Self, ConstraintsError> {
         let p: ProjectParams = c.method_params()?;
-        let bad = |field: &str, msg: String| Err(ConstraintsError::new(format!("params.{field}"), msg));
+        let bad =
+            |field: &str, msg: String| Err(ConstraintsError::new(format!("params.{field}"), msg));
         if let Some(d) = p.max_distance {
             if !(d > 0.0 && d <= 10.0) {
                 return bad("max_distance", format!("{d} is outside the range (0, 10]"));
@@ -77,17 +78,32 @@ impl ProjectParams {
         }
         if let Some(a) = p.max_normal_angle {
             if !(a > 0.0 && a <= 180.0) {
-                return bad("max_normal_angle", format!("{a} is outside the range (0, 180]"));
+                return bad(
+                    "max_normal_angle",
+                    format!("{a} is outside the range (0, 180]"),
+                );
             }
         }
         if !(1..=4_000_000).contains(&p.vertex_color_samples) {
-            return bad("vertex_color_samples", format!("{} is outside the range 1..=4000000", p.vertex_color_samples));
+            return bad(
+                "vertex_color_samples",
+                format!(
+                    "{} is outside the range 1..=4000000",
+                    p.vertex_color_samples
+                ),
+            );
         }
         if !(p.snap_tolerance > 0.0 && p.snap_tolerance <= 1.0) {
-            return bad("snap_tolerance", format!("{} is outside the range (0, 1]", p.snap_tolerance));
+            return bad(
+                "snap_tolerance",
+                format!("{} is outside the range (0, 1]", p.snap_tolerance),
+            );
         }
         if !(0.0..=1e-2).contains(&p.weld_tolerance) {
-            return bad("weld_tolerance", format!("{} is outside the range [0, 0.01]", p.weld_tolerance));
+            return bad(
+                "weld_tolerance",
+                format!("{} is outside the range [0, 0.01]", p.weld_tolerance),
+            );
         }
         Ok(p)
     }
@@ -174,7 +190,11 @@ pub struct SurfaceReport {
 
 impl SurfaceReport {
     fn of(s: &Surface) -> Self {
-        Self { vertices: s.vertex_count(), faces: s.face_count(), degenerate_removed: s.degenerate_removed }
+        Self {
+            vertices: s.vertex_count(),
+            faces: s.face_count(),
+            degenerate_removed: s.degenerate_removed,
+        }
     }
 }
 
@@ -211,7 +231,9 @@ impl SourceField<'_> {
     fn color_at(&self, p: [f32; 3], n: [f32; 3]) -> Option<[f32; 4]> {
         let hit = match self.min_cos {
             None => self.bvh.closest_point(p, self.max_distance),
-            Some(c) => self.bvh.closest_point_filtered(p, self.max_distance, |f| dot(self.normals[f as usize], n) >= c),
+            Some(c) => self.bvh.closest_point_filtered(p, self.max_distance, |f| {
+                dot(self.normals[f as usize], n) >= c
+            }),
         }?;
         let f = hit.face as usize;
         let o = self.surface.origins[f];
@@ -225,7 +247,10 @@ impl SourceField<'_> {
                 bary[j] += hit.bary[k];
             }
         }
-        Some(self.sampler.base_color(o.primitive as usize, o.triangle as usize, bary))
+        Some(
+            self.sampler
+                .base_color(o.primitive as usize, o.triangle as usize, bary),
+        )
     }
 }
 
@@ -239,7 +264,11 @@ fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
 
 fn normal_of(a: [f32; 3], b: [f32; 3], c: [f32; 3]) -> [f32; 3] {
     let (u, v) = (sub(b, a), sub(c, a));
-    let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+    let n = [
+        u[1] * v[2] - u[2] * v[1],
+        u[2] * v[0] - u[0] * v[2],
+        u[0] * v[1] - u[1] * v[0],
+    ];
     let l = dot(n, n).sqrt();
     if l > 0.0 {
         [n[0] / l, n[1] / l, n[2] / l]
@@ -268,10 +297,18 @@ pub fn run(
     params: &ProjectParams,
     control: &Control,
 ) -> Result<(Edits, ProjectReport), ProjectError> {
-    let weld = WeldParams { relative_tolerance: params.weld_tolerance };
+    let weld = WeldParams {
+        relative_tolerance: params.weld_tolerance,
+    };
     control.stage("surface", 2)?;
-    let mut src_surface = build_surface(source, &weld).map_err(|source| ProjectError::Mesh { side: "source", source })?;
-    let tgt_surface = build_surface(target, &weld).map_err(|source| ProjectError::Mesh { side: "target", source })?;
+    let mut src_surface = build_surface(source, &weld).map_err(|source| ProjectError::Mesh {
+        side: "source",
+        source,
+    })?;
+    let tgt_surface = build_surface(target, &weld).map_err(|source| ProjectError::Mesh {
+        side: "target",
+        source,
+    })?;
     let mut src_bvh = Bvh::build(&src_surface.positions, &src_surface.faces);
     let tgt_bvh = Bvh::build(&tgt_surface.positions, &tgt_surface.faces);
     let mut warnings = Vec::new();
@@ -279,8 +316,16 @@ pub fn run(
     control.stage("align", 1)?;
     let resolved = resolve(
         &constraints.correspondences,
-        &Side { asset: source, bvh: &src_bvh, tolerance: params.snap_tolerance * src_surface.diagonal() },
-        &Side { asset: target, bvh: &tgt_bvh, tolerance: params.snap_tolerance * tgt_surface.diagonal() },
+        &Side {
+            asset: source,
+            bvh: &src_bvh,
+            tolerance: params.snap_tolerance * src_surface.diagonal(),
+        },
+        &Side {
+            asset: target,
+            bvh: &tgt_bvh,
+            tolerance: params.snap_tolerance * tgt_surface.diagonal(),
+        },
     )?;
     let mut from = Vec::new();
     let mut to = Vec::new();
@@ -296,16 +341,25 @@ pub fn run(
             *p = to_f32(transform.apply(p.map(f64::from)));
         }
         src_bvh = Bvh::build(&src_surface.positions, &src_surface.faces);
-        Some(AlignmentReport { rms_error: transform.rms_error(&from, &to), pairs: from.len(), transform })
+        Some(AlignmentReport {
+            rms_error: transform.rms_error(&from, &to),
+            pairs: from.len(),
+            transform,
+        })
     } else {
         if from.len() == 1 && params.align {
-            warnings.push("one correspondence pair cannot define an alignment; the source was not moved".into());
+            warnings.push(
+                "one correspondence pair cannot define an alignment; the source was not moved"
+                    .into(),
+            );
         }
         None
     };
 
     let diag = tgt_surface.diagonal();
-    let normals = (0..src_surface.face_count()).map(|f| src_surface.face_normal(f)).collect();
+    let normals = (0..src_surface.face_count())
+        .map(|f| src_surface.face_normal(f))
+        .collect();
     let field = SourceField {
         asset: source,
         bvh: src_bvh,
@@ -325,7 +379,8 @@ pub fn run(
             .and_then(|m| m.base_color_texture)
             .map_or(0, |t| t.tex_coord)
     };
-    let mut groups: std::collections::BTreeMap<Option<usize>, Vec<PlacedTriangle>> = Default::default();
+    let mut groups: std::collections::BTreeMap<Option<usize>, Vec<PlacedTriangle>> =
+        Default::default();
     let mut vertex_path: Vec<(usize, usize)> = Vec::new(); // (primitive, instance)
     for (ii, inst) in target.instances.iter().enumerate() {
         for p in target.primitives_of_mesh(inst.mesh) {
@@ -350,7 +405,12 @@ pub fn run(
                 if mirrored {
                     normal = normal.map(|x| -x);
                 }
-                group.push(PlacedTriangle { primitive: p, world: w, normal, uv: t.map(|v| prim.tex_coords[set][v as usize]) });
+                group.push(PlacedTriangle {
+                    primitive: p,
+                    world: w,
+                    normal,
+                    uv: t.map(|v| prim.tex_coords[set][v as usize]),
+                });
             }
         }
     }
@@ -378,7 +438,8 @@ pub fn run(
                         let b = hit.bary;
                         let mut p = [0.0f32; 3];
                         for (k, pk) in p.iter_mut().enumerate() {
-                            *pk = b[0] * t.world[0][k] + b[1] * t.world[1][k] + b[2] * t.world[2][k];
+                            *pk =
+                                b[0] * t.world[0][k] + b[1] * t.world[1][k] + b[2] * t.world[2][k];
                         }
                         if let Some(c) = field.color_at(p, t.normal) {
                             px[i] = c;
@@ -390,17 +451,23 @@ pub fn run(
             })?;
         let covered = map.covered();
         let unmatched = covered - valid.iter().filter(|v| **v).count() as u64;
-        baked.push((*material, tris, pixels, valid, TextureReport {
-            material: *material,
-            size,
-            tex_coord: tris.first().map_or(0, |t| uv_set_of(t.primitive)),
-            triangles: tris.len(),
-            covered,
-            overlapped: map.overlapped,
-            unmatched,
-            padded: 0,
-            filled: 0,
-        }));
+        baked.push((
+            *material,
+            tris,
+            pixels,
+            valid,
+            TextureReport {
+                material: *material,
+                size,
+                tex_coord: tris.first().map_or(0, |t| uv_set_of(t.primitive)),
+                triangles: tris.len(),
+                covered,
+                overlapped: map.overlapped,
+                unmatched,
+                padded: 0,
+                filled: 0,
+            },
+        ));
     }
 
     control.stage("pad", baked.len() as u64)?;
@@ -439,8 +506,8 @@ pub fn run(
         let prim = &target.primitives[p];
         let inst = &target.instances[ii];
         let prim_json = &target.json["meshes"][prim.mesh]["primitives"][prim.primitive];
-        let skinned_or_morphed = prim_json.get("targets").is_some()
-            || prim_json["attributes"].get("JOINTS_0").is_some();
+        let skinned_or_morphed =
+            prim_json.get("targets").is_some() || prim_json["attributes"].get("JOINTS_0").is_some();
         let refine_it = !constraints.output.vertex_colors && !skinned_or_morphed;
         if !constraints.output.vertex_colors && skinned_or_morphed {
             warnings.push(format!(
@@ -450,13 +517,24 @@ pub fn run(
         }
         let (positions, triangles, normals) = if refine_it {
             let scale = instance_scale(&inst.world);
-            let r = refine(&prim.positions, &prim.triangles, &RefineParams { max_edge_length: max_edge / scale, ..Default::default() });
+            let r = refine(
+                &prim.positions,
+                &prim.triangles,
+                &RefineParams {
+                    max_edge_length: max_edge / scale,
+                    ..Default::default()
+                },
+            );
             let normals = prim.normals.as_ref().map(|n| {
                 r.interpolate(n)
                     .into_iter()
                     .map(|v| {
                         let l = dot(v, v).sqrt();
-                        if l > 0.0 { [v[0] / l, v[1] / l, v[2] / l] } else { [0.0, 0.0, 1.0] }
+                        if l > 0.0 {
+                            [v[0] / l, v[1] / l, v[2] / l]
+                        } else {
+                            [0.0, 0.0, 1.0]
+                        }
                     })
                     .collect()
             });
@@ -464,10 +542,17 @@ pub fn run(
         } else {
             (prim.positions.clone(), prim.triangles.clone(), None)
         };
-        let world: Vec<[f32; 3]> = positions.iter().map(|q| to_f32(inst.transform_point(*q))).collect();
+        let world: Vec<[f32; 3]> = positions
+            .iter()
+            .map(|q| to_f32(inst.transform_point(*q)))
+            .collect();
         let mut vnormals = vec![[0.0f32; 3]; world.len()];
         for t in &triangles {
-            let n = normal_of(world[t[0] as usize], world[t[1] as usize], world[t[2] as usize]);
+            let n = normal_of(
+                world[t[0] as usize],
+                world[t[1] as usize],
+                world[t[2] as usize],
+            );
             let n = if inst.mirrors() { n.map(|x| -x) } else { n };
             for &v in t {
                 for k in 0..3 {
@@ -493,9 +578,18 @@ pub fn run(
             unmatched,
         });
         if refine_it {
-            edits.refined.push(RefinedPrimitive { primitive: p, positions, normals, colors, triangles });
+            edits.refined.push(RefinedPrimitive {
+                primitive: p,
+                positions,
+                normals,
+                colors,
+                triangles,
+            });
         } else {
-            edits.vertex_colors.push(VertexColors { primitive: p, colors });
+            edits.vertex_colors.push(VertexColors {
+                primitive: p,
+                colors,
+            });
         }
         if let Some(m) = prim.material {
             if !groups.contains_key(&Some(m)) && !edits.untextured_materials.contains(&m) {
@@ -525,7 +619,8 @@ pub fn run(
 
 /// Cube root of |det| of the upper 3x3: the mean linear scale of an instance transform.
 fn instance_scale(m: &[[f64; 4]; 4]) -> f32 {
-    let det = m[0][0] * (m[1][1] * m[2][2] - m[2][1] * m[1][2]) - m[1][0] * (m[0][1] * m[2][2] - m[2][1] * m[0][2])
+    let det = m[0][0] * (m[1][1] * m[2][2] - m[2][1] * m[1][2])
+        - m[1][0] * (m[0][1] * m[2][2] - m[2][1] * m[0][2])
         + m[2][0] * (m[0][1] * m[1][2] - m[1][1] * m[0][2]);
     let s = det.abs().cbrt() as f32;
     if s > 0.0 && s.is_finite() {
@@ -543,7 +638,11 @@ fn primitive_world_area(asset: &Asset, p: usize, instance: usize) -> f64 {
         .map(|t| {
             let w = t.map(|v| to_f32(inst.transform_point(prim.positions[v as usize])));
             let (u, v) = (sub(w[1], w[0]), sub(w[2], w[0]));
-            let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+            let n = [
+                u[1] * v[2] - u[2] * v[1],
+                u[2] * v[0] - u[0] * v[2],
+                u[0] * v[1] - u[1] * v[0],
+            ];
             0.5 * (dot(n, n) as f64).sqrt()
         })
         .sum()
@@ -551,7 +650,10 @@ fn primitive_world_area(asset: &Asset, p: usize, instance: usize) -> f64 {
 
 /// Vertices without a color take the mean of their colored neighbours, repeatedly; any left
 /// (an island with no valid source point at all) take the mean of all colored vertices, or grey.
-fn fill_from_neighbours(mut colors: Vec<Option<[f32; 4]>>, triangles: &[[u32; 3]]) -> Vec<[f32; 4]> {
+fn fill_from_neighbours(
+    mut colors: Vec<Option<[f32; 4]>>,
+    triangles: &[[u32; 3]],
+) -> Vec<[f32; 4]> {
     for _ in 0..64 {
         if colors.iter().all(Option::is_some) {
             break;

@@ -24,7 +24,11 @@ pub struct RefineParams {
 
 impl Default for RefineParams {
     fn default() -> Self {
-        Self { max_edge_length: f32::INFINITY, max_triangles: 4_000_000, max_passes: 24 }
+        Self {
+            max_edge_length: f32::INFINITY,
+            max_triangles: 4_000_000,
+            max_passes: 24,
+        }
     }
 }
 
@@ -73,7 +77,7 @@ pub fn refine(positions: &[[f32; 3]], triangles: &[[u32; 3]], params: &RefinePar
         input_count: positions.len(),
     };
     let limit2 = params.max_edge_length * params.max_edge_length;
-    if !(limit2 > 0.0) {
+    if limit2.is_nan() || limit2 <= 0.0 {
         return out;
     }
     for _ in 0..params.max_passes {
@@ -89,7 +93,11 @@ pub fn refine(positions: &[[f32; 3]], triangles: &[[u32; 3]], params: &RefinePar
                 }
                 if dist2(out.positions[a as usize], out.positions[b as usize]) > limit2 {
                     let (pa, pb) = (out.positions[key.0 as usize], out.positions[key.1 as usize]);
-                    let m = [0.5 * (pa[0] + pb[0]), 0.5 * (pa[1] + pb[1]), 0.5 * (pa[2] + pb[2])];
+                    let m = [
+                        0.5 * (pa[0] + pb[0]),
+                        0.5 * (pa[1] + pb[1]),
+                        0.5 * (pa[2] + pb[2]),
+                    ];
                     midpoints.insert(key, out.positions.len() as u32);
                     out.positions.push(m);
                     out.parents.push([key.0, key.1]);
@@ -157,7 +165,11 @@ mod tests {
                 let (a, b, c) = (p[a as usize], p[b as usize], p[c as usize]);
                 let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
                 let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-                let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+                let n = [
+                    u[1] * v[2] - u[2] * v[1],
+                    u[2] * v[0] - u[0] * v[2],
+                    u[0] * v[1] - u[1] * v[0],
+                ];
                 0.5 * ((n[0] * n[0] + n[1] * n[1] + n[2] * n[2]) as f64).sqrt()
             })
             .sum()
@@ -165,13 +177,29 @@ mod tests {
 
     #[test]
     fn splitting_keeps_area_bounds_edges_and_stays_conforming() {
-        let p = vec![[0.0, 0.0, 0.0], [4.0, 0.0, 0.0], [4.0, 1.0, 0.0], [0.0, 3.0, 0.0]];
+        let p = vec![
+            [0.0, 0.0, 0.0],
+            [4.0, 0.0, 0.0],
+            [4.0, 1.0, 0.0],
+            [0.0, 3.0, 0.0],
+        ];
         let t = vec![[0, 1, 2], [0, 2, 3]];
-        let r = refine(&p, &t, &RefineParams { max_edge_length: 0.3, ..Default::default() });
+        let r = refine(
+            &p,
+            &t,
+            &RefineParams {
+                max_edge_length: 0.3,
+                ..Default::default()
+            },
+        );
         assert!((area(&r.positions, &r.triangles) - area(&p, &t)).abs() < 1e-4);
         for tri in &r.triangles {
             for k in 0..3 {
-                let d = dist2(r.positions[tri[k] as usize], r.positions[tri[(k + 1) % 3] as usize]).sqrt();
+                let d = dist2(
+                    r.positions[tri[k] as usize],
+                    r.positions[tri[(k + 1) % 3] as usize],
+                )
+                .sqrt();
                 assert!(d <= 0.3 + 1e-5, "edge {d}");
             }
         }
@@ -190,14 +218,24 @@ mod tests {
             .map(|((a, b), _)| dist2(r.positions[*a as usize], r.positions[*b as usize]).sqrt())
             .sum();
         let perimeter = 4.0 + 1.0 + (16.0f32 + 4.0).sqrt() + 3.0;
-        assert!((boundary - perimeter).abs() < 1e-3, "{boundary} vs {perimeter}");
+        assert!(
+            (boundary - perimeter).abs() < 1e-3,
+            "{boundary} vs {perimeter}"
+        );
         assert!(count.values().all(|c| *c <= 2));
     }
 
     #[test]
     fn interpolation_follows_parents() {
         let p = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
-        let r = refine(&p, &[[0, 1, 2]], &RefineParams { max_edge_length: 0.2, ..Default::default() });
+        let r = refine(
+            &p,
+            &[[0, 1, 2]],
+            &RefineParams {
+                max_edge_length: 0.2,
+                ..Default::default()
+            },
+        );
         let attr: Vec<[f32; 1]> = p.iter().map(|q| [q[0] * 2.0 + q[1]]).collect();
         let out = r.interpolate(&attr);
         for (q, a) in r.positions.iter().zip(&out) {
@@ -207,9 +245,21 @@ mod tests {
 
     #[test]
     fn requested_count_is_roughly_met() {
-        let p = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]];
+        let p = vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [0.0, 1.0, 0.0],
+        ];
         let l = edge_length_for_vertex_count(1.0, 10_000);
-        let r = refine(&p, &[[0, 1, 2], [0, 2, 3]], &RefineParams { max_edge_length: l, ..Default::default() });
+        let r = refine(
+            &p,
+            &[[0, 1, 2], [0, 2, 3]],
+            &RefineParams {
+                max_edge_length: l,
+                ..Default::default()
+            },
+        );
         let n = r.positions.len();
         assert!((3_000..40_000).contains(&n), "{n}");
     }
