@@ -24,6 +24,7 @@ use crate::engine::asset::Asset;
 use crate::engine::control::{Cancelled, Control};
 use crate::engine::mesh::{build_surface, MeshError, Surface, WeldParams};
 use crate::engine::multires::{edge_length_for_vertex_count, refine, RefineParams};
+use crate::engine::spatial::triangle::point_triangle_distance_squared;
 use crate::engine::spatial::Bvh;
 use crate::engine::texture::bake::rasterize_uv_layout;
 use crate::engine::texture::encode::encode_png_srgb;
@@ -213,6 +214,8 @@ pub struct ProjectReport {
     pub vertex_colors: Vec<VertexColorReport>,
     /// Things the user should know (lowercase sentences).
     pub warnings: Vec<String>,
+    /// Wall-clock milliseconds per stage (surface, align, bake, pad, vertex_colors).
+    pub timings_ms: Vec<(String, f64)>,
 }
 
 /// The source, placed in the target's frame, ready to answer "what color is closest to p".
@@ -227,13 +230,25 @@ struct SourceField<'a> {
 }
 
 impl SourceField<'_> {
-    /// Base color of the closest valid source point to `p` (target normal `n` for gating).
-    fn color_at(&self, p: [f32; 3], n: [f32; 3]) -> Option<[f32; 4]> {
+    /// Base color of the closest valid source point to `p` (target normal `n` for gating), and
+    /// the source face it lies on. `hint` is a face that was closest for a nearby point: its
+    /// distance bounds the search (a warm start that prunes most of the BVH); the result does not
+    /// depend on it, because the bound includes the true closest point and ties still go to the
+    /// lowest face index.
+    fn color_at(&self, p: [f32; 3], n: [f32; 3], hint: Option<u32>) -> Option<([f32; 4], u32)> {
+        let accept = |f: u32| {
+            self.min_cos
+                .is_none_or(|c| dot(self.normals[f as usize], n) >= c)
+        };
+        let mut bound = self.max_distance;
+        if let Some(h) = hint.filter(|h| accept(*h)) {
+            let [a, b, c] = self.surface.face_positions(h as usize);
+            let (d2, _, _) = point_triangle_distance_squared(p, a, b, c);
+            bound = bound.min(d2.sqrt() * (1.0 + 1e-4) + 1e-12);
+        }
         let hit = match self.min_cos {
-            None => self.bvh.closest_point(p, self.max_distance),
-            Some(c) => self.bvh.closest_point_filtered(p, self.max_distance, |f| {
-                dot(self.normals[f as usize], n) >= c
-            }),
+            None => self.bvh.closest_point(p, bound),
+            Some(_) => self.bvh.closest_point_filtered(p, bound, accept),
         }?;
         let f = hit.face as usize;
         let o = self.surface.origins[f];
@@ -247,10 +262,10 @@ impl SourceField<'_> {
                 bary[j] += hit.bary[k];
             }
         }
-        Some(
-            self.sampler
-                .base_color(o.primitive as usize, o.triangle as usize, bary),
-        )
+        let color = self
+            .sampler
+            .base_color(o.primitive as usize, o.triangle as usize, bary);
+        Some((color, hit.face))
     }
 }
 
@@ -300,6 +315,13 @@ pub fn run(
     let weld = WeldParams {
         relative_tolerance: params.weld_tolerance,
     };
+    let mut timings_ms: Vec<(String, f64)> = Vec::new();
+    let mut clock = std::time::Instant::now();
+    let mut lap = |name: &str, timings: &mut Vec<(String, f64)>| {
+        let now = std::time::Instant::now();
+        timings.push((name.to_string(), (now - clock).as_secs_f64() * 1e3));
+        clock = now;
+    };
     control.stage("surface", 2)?;
     let mut src_surface = build_surface(source, &weld).map_err(|source| ProjectError::Mesh {
         side: "source",
@@ -313,6 +335,7 @@ pub fn run(
     let tgt_bvh = Bvh::build(&tgt_surface.positions, &tgt_surface.faces);
     let mut warnings = Vec::new();
 
+    lap("surface", &mut timings_ms);
     control.stage("align", 1)?;
     let resolved = resolve(
         &constraints.correspondences,
@@ -418,6 +441,7 @@ pub fn run(
 
     let size = constraints.output.texture_size;
     let total_texels = groups.len() as u64 * size as u64 * size as u64;
+    lap("align", &mut timings_ms);
     let stage = control.stage("bake", total_texels)?;
     let mut baked = Vec::new();
     for (material, tris) in &groups {
@@ -432,6 +456,7 @@ pub fn run(
             .enumerate()
             .try_for_each(|(chunk, (px, ok))| {
                 let base = chunk * row * 16;
+                let mut hint = None;
                 for i in 0..px.len() {
                     if let Some(hit) = map.hits[base + i] {
                         let t = &tris[hit.triangle as usize];
@@ -441,9 +466,10 @@ pub fn run(
                             *pk =
                                 b[0] * t.world[0][k] + b[1] * t.world[1][k] + b[2] * t.world[2][k];
                         }
-                        if let Some(c) = field.color_at(p, t.normal) {
+                        if let Some((c, face)) = field.color_at(p, t.normal, hint) {
                             px[i] = c;
                             ok[i] = true;
+                            hint = Some(face);
                         }
                     }
                 }
@@ -470,32 +496,45 @@ pub fn run(
         ));
     }
 
-    control.stage("pad", baked.len() as u64)?;
+    lap("bake", &mut timings_ms);
+    let pad_stage = control.stage("pad", baked.len() as u64)?;
+    let padding = constraints.output.padding;
+    // Groups are independent: pad and encode them in parallel (order kept by the collect).
+    let finished: Vec<(MaterialTexture, TextureReport)> = baked
+        .into_par_iter()
+        .map(|(material, tris, mut pixels, valid, mut report)| {
+            let pr = pad(&mut pixels, &valid, size, size, padding);
+            report.padded = pr.padded;
+            report.filled = pr.filled;
+            let mut prims: Vec<usize> = tris.iter().map(|t| t.primitive).collect();
+            prims.sort_unstable();
+            prims.dedup();
+            let name = match material {
+                Some(m) => format!("retex_basecolor_material{m}"),
+                None => "retex_basecolor_default".to_string(),
+            };
+            let png = encode_png_srgb(&pixels, size, size);
+            pad_stage.tick(1)?;
+            Ok((
+                MaterialTexture {
+                    material,
+                    primitives: prims,
+                    png,
+                    tex_coord: report.tex_coord,
+                    name,
+                },
+                report,
+            ))
+        })
+        .collect::<Result<_, Cancelled>>()?;
     let mut edits = Edits::default();
     let mut textures = Vec::new();
-    for (material, tris, mut pixels, valid, mut report) in baked {
-        let pr = pad(&mut pixels, &valid, size, size, constraints.output.padding);
-        report.padded = pr.padded;
-        report.filled = pr.filled;
-        let mut prims: Vec<usize> = tris.iter().map(|t| t.primitive).collect();
-        prims.dedup();
-        prims.sort_unstable();
-        prims.dedup();
-        let name = match material {
-            Some(m) => format!("retex_basecolor_material{m}"),
-            None => "retex_basecolor_default".to_string(),
-        };
-        edits.textures.push(MaterialTexture {
-            material,
-            primitives: prims,
-            png: encode_png_srgb(&pixels, size, size),
-            tex_coord: report.tex_coord,
-            name,
-        });
+    for (texture, report) in finished {
+        edits.textures.push(texture);
         textures.push(report);
-        control.check()?;
     }
 
+    lap("pad", &mut timings_ms);
     let mut vertex_colors = Vec::new();
     let area: f64 = vertex_path
         .iter()
@@ -565,7 +604,7 @@ pub fn run(
             .zip(vnormals.par_iter())
             .map(|(q, n)| {
                 let l = dot(*n, *n).sqrt().max(1e-20);
-                field.color_at(*q, n.map(|x| x / l))
+                field.color_at(*q, n.map(|x| x / l), None).map(|(c, _)| c)
             })
             .collect();
         let unmatched = found.iter().filter(|c| c.is_none()).count();
@@ -606,6 +645,7 @@ pub fn run(
         ));
     }
 
+    lap("vertex_colors", &mut timings_ms);
     let report = ProjectReport {
         source_surface: src_report,
         target_surface: SurfaceReport::of(&tgt_surface),
@@ -613,6 +653,7 @@ pub fn run(
         textures,
         vertex_colors,
         warnings,
+        timings_ms,
     };
     Ok((edits, report))
 }

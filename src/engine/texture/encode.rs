@@ -92,7 +92,7 @@ pub fn try_encode_png_srgb(
         ExtendedColorType::Rgba8
     };
     let mut out = Vec::new();
-    PngEncoder::new_with_quality(&mut out, CompressionType::Default, FilterType::Adaptive)
+    PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Adaptive)
         .write_image(&raw, width, height, color)?;
     Ok(out)
 }
