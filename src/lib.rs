@@ -5,3 +5,6 @@
 //! `--no-default-features`. See `DESIGN.md` in the shared folder for the data flow.
 
 pub mod engine;
+
+#[cfg(feature = "service")]
+pub mod service;

@@ -3,6 +3,8 @@
 
 pub mod asset;
 pub mod control;
+pub mod geometry;
+pub mod linalg;
 pub mod mesh;
 pub mod methods;
 pub mod multires;

@@ -1,0 +1,3 @@
+//! Differential geometry on Surfaces: Laplacian and mass, geodesics (heat method, bounded
+//! walks), curvature, and ray-cast shape features (solid angle, occlusion, shape diameter).
+//! Each operator is a plain function with a `Params` struct.

@@ -1,0 +1,181 @@
+//! Durable storage behind two traits: [`JobStore`] (job records, idempotency keys) and
+//! [`BlobStore`] (uploaded files and results). The embedded implementations are SQLite in WAL
+//! mode with `synchronous=FULL` ([`sqlite::SqliteJobStore`]) and a data directory with atomic
+//! writes ([`fs::FsBlobStore`]); a networked backend can implement the same traits without
+//! touching the routes.
+//!
+//! Both traits are synchronous (SQLite and the file system are); async callers use
+//! `tokio::task::spawn_blocking`. Blob keys are relative paths of `[A-Za-z0-9._-]` segments
+//! separated by `/` (e.g. `jobs/<id>/inputs/source/Fox.bin`), validated by the blob store.
+
+use std::path::PathBuf;
+
+use chrono::{DateTime, Utc};
+use uuid::Uuid;
+
+use super::model::{ArtifactRef, JobProgress, JobRecord, JobStatus, Problem};
+
+pub mod fs;
+pub mod sqlite;
+
+/// Storage failures.
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    /// No job with this id.
+    #[error("job {0} not found")]
+    NotFound(Uuid),
+    /// The job is not in a state that allows the operation.
+    #[error("job {id} is {status:?}: {what}")]
+    Conflict {
+        /// The job.
+        id: Uuid,
+        /// Its current status.
+        status: JobStatus,
+        /// What was refused.
+        what: &'static str,
+    },
+    /// The Idempotency-Key was used before with a different request.
+    #[error("idempotency key {key:?} was used with a different request (job {existing})")]
+    IdempotencyMismatch {
+        /// The key.
+        key: String,
+        /// The job created with it.
+        existing: Uuid,
+    },
+    /// A blob key that is not a safe relative path.
+    #[error("invalid blob key {0:?}")]
+    InvalidKey(String),
+    /// No blob under this key.
+    #[error("blob {0:?} not found")]
+    BlobNotFound(String),
+    /// File system failure.
+    #[error("io: {0}")]
+    Io(#[from] std::io::Error),
+    /// Database failure.
+    #[error("database: {0}")]
+    Database(String),
+}
+
+/// Result of [`JobStore::create`].
+#[derive(Clone, Debug, PartialEq)]
+pub enum CreateOutcome {
+    /// The job was inserted.
+    Created,
+    /// A job with the same Idempotency-Key and the same request hash exists: this one.
+    Existing(JobRecord),
+}
+
+/// How a job ended.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Finish {
+    /// With results (the first artifact is the result model).
+    Succeeded {
+        /// Stored outputs.
+        artifacts: Vec<ArtifactRef>,
+        /// The method report.
+        report: serde_json::Value,
+    },
+    /// With an error.
+    Failed {
+        /// What went wrong.
+        error: Problem,
+        /// A partial report, if any.
+        report: Option<serde_json::Value>,
+    },
+    /// Canceled by a client while processing.
+    Canceled,
+}
+
+/// Filter and page of [`JobStore::list`]; newest first.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ListFilter {
+    /// Only this status.
+    pub status: Option<JobStatus>,
+    /// Only this method.
+    pub method: Option<String>,
+    /// Only jobs created strictly after this instant.
+    pub created_after: Option<DateTime<Utc>>,
+    /// Only jobs created strictly before this instant.
+    pub created_before: Option<DateTime<Utc>>,
+    /// Page size (1..=500).
+    pub limit: usize,
+    /// Opaque cursor from a previous page's `next`.
+    pub cursor: Option<String>,
+}
+
+/// One page of jobs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ListPage {
+    /// Jobs, newest first.
+    pub jobs: Vec<JobRecord>,
+    /// Cursor of the next page, if there is one.
+    pub next: Option<String>,
+}
+
+/// What [`JobStore::recover`] did at start-up.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Recovery {
+    /// Jobs that were processing and were put back in the queue.
+    pub requeued: Vec<Uuid>,
+    /// Jobs that were processing too many times and were failed.
+    pub failed: Vec<Uuid>,
+}
+
+/// Counts for metrics.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct StatusCounts {
+    /// Jobs per status.
+    pub by_status: Vec<(JobStatus, u64)>,
+    /// Creation time of the oldest enqueued job.
+    pub oldest_enqueued: Option<DateTime<Utc>>,
+}
+
+/// Durable job records.
+pub trait JobStore: Send + Sync + 'static {
+    /// Inserts an enqueued job. With an idempotency key that was seen within the key retention:
+    /// the same request hash returns [`CreateOutcome::Existing`], another one
+    /// [`StoreError::IdempotencyMismatch`].
+    fn create(&self, job: &JobRecord) -> Result<CreateOutcome, StoreError>;
+    /// The job, if it exists.
+    fn get(&self, id: Uuid) -> Result<Option<JobRecord>, StoreError>;
+    /// Jobs matching the filter, newest first, one page.
+    fn list(&self, filter: &ListFilter) -> Result<ListPage, StoreError>;
+    /// Atomically takes the oldest enqueued job: status processing, `started_at = now`,
+    /// `attempts + 1`. `None` when the queue is empty.
+    fn claim_next(&self, now: DateTime<Utc>) -> Result<Option<JobRecord>, StoreError>;
+    /// Records progress of a processing job (ignored once the job is terminal).
+    fn update_progress(&self, id: Uuid, progress: &JobProgress) -> Result<(), StoreError>;
+    /// Moves an enqueued or processing job to its terminal state in one transaction.
+    fn finish(&self, id: Uuid, outcome: Finish, now: DateTime<Utc>) -> Result<JobRecord, StoreError>;
+    /// Cancels an enqueued job at once and returns it; a processing job is returned unchanged
+    /// (the runner stops it cooperatively); a terminal job is a [`StoreError::Conflict`].
+    fn cancel_if_enqueued(&self, id: Uuid, now: DateTime<Utc>) -> Result<JobRecord, StoreError>;
+    /// Start-up recovery: processing jobs go back to enqueued, or fail once `attempts` reached
+    /// `max_attempts`.
+    fn recover(&self, max_attempts: u32, now: DateTime<Utc>) -> Result<Recovery, StoreError>;
+    /// Removes a terminal job's record (a non-terminal one is a [`StoreError::Conflict`]).
+    fn delete(&self, id: Uuid) -> Result<JobRecord, StoreError>;
+    /// Removes terminal jobs finished before `finished_before` and idempotency keys older than
+    /// `keys_before`; returns the removed records so their blobs can be deleted.
+    fn prune(&self, finished_before: DateTime<Utc>, keys_before: DateTime<Utc>) -> Result<Vec<JobRecord>, StoreError>;
+    /// Counts per status and the age of the queue.
+    fn counts(&self) -> Result<StatusCounts, StoreError>;
+}
+
+/// Durable blobs (uploads and results).
+pub trait BlobStore: Send + Sync + 'static {
+    /// Writes `bytes` under `key` atomically (temporary file, fsync, rename).
+    fn put(&self, key: &str, bytes: &[u8]) -> Result<(), StoreError>;
+    /// Moves a finished temporary file (from [`BlobStore::temp_dir`]) under `key` atomically.
+    fn put_file(&self, key: &str, temp: &std::path::Path) -> Result<(), StoreError>;
+    /// Reads a whole blob.
+    fn get(&self, key: &str) -> Result<Vec<u8>, StoreError>;
+    /// Size of a blob in bytes.
+    fn len(&self, key: &str) -> Result<u64, StoreError>;
+    /// Reads `len` bytes starting at `offset` (for HTTP Range requests).
+    fn read_range(&self, key: &str, offset: u64, len: u64) -> Result<Vec<u8>, StoreError>;
+    /// Deletes every blob whose key starts with `prefix` (a whole job: `jobs/<id>/`).
+    fn delete_prefix(&self, prefix: &str) -> Result<(), StoreError>;
+    /// A folder on the same file system for streaming uploads before [`BlobStore::put_file`].
+    fn temp_dir(&self) -> PathBuf;
+}
