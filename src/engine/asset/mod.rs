@@ -9,7 +9,9 @@ pub mod export;
 pub mod glb;
 pub mod images;
 pub mod load;
+pub mod meshes;
 pub mod model;
+pub mod scene;
 pub mod uri;
 
 pub use blobs::BlobSet;
