@@ -8,6 +8,11 @@ use retex::engine::asset::{load, Asset, BlobSet, IngestLimits};
 use retex::engine::mesh::{build_surface, topology, WeldParams};
 use serde_json::{json, Value};
 
+/// An f32 shown with 4 decimals (without the f32 → f64 noise in the JSON).
+fn round4(x: f32) -> f64 {
+    (x as f64 * 1e4).round() / 1e4
+}
+
 /// Builds the description of a loaded asset.
 pub fn describe(asset: &Asset) -> Value {
     let mut meshes: Vec<Value> = Vec::new();
@@ -43,7 +48,7 @@ pub fn describe(asset: &Asset) -> Value {
                     "transform": t.transform.map(|x| json!({"offset": x.offset, "rotation": x.rotation, "scale": x.scale})),
                 })
             });
-            json!({"index": i, "name": m.name, "base_color_factor": m.base_color_factor, "base_color_texture": tex})
+            json!({"index": i, "name": m.name, "base_color_factor": m.base_color_factor.map(round4), "base_color_texture": tex})
         })
         .collect();
     let images: Vec<Value> = asset
@@ -70,7 +75,8 @@ pub fn describe(asset: &Asset) -> Value {
                 "vertices": s.vertex_count(), "faces": s.face_count(), "degenerate_removed": s.degenerate_removed,
                 "boundary_loops": t.boundary_loops.len(), "non_manifold_edges": t.non_manifold_edges,
                 "components": t.component_count, "euler_characteristic": t.euler_characteristic,
-                "bounding_box": {"min": lo, "max": hi}, "diagonal": s.diagonal(), "area": s.area(),
+                "bounding_box": {"min": lo.map(round4), "max": hi.map(round4)},
+                "diagonal": round4(s.diagonal()), "area": s.area(),
             })
         }
         Err(e) => {
