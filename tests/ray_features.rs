@@ -5,12 +5,24 @@ use std::collections::HashMap;
 use std::f64::consts::PI;
 
 use retex::engine::control::Control;
-use retex::engine::geometry::occlusion::{directional_occlusion, OcclusionParams};
+use retex::engine::geometry::occlusion::{
+    directional_occlusion, directional_occlusion_with, OcclusionParams,
+};
 use retex::engine::geometry::ray_sets::{cast_rays, fibonacci_sphere, RayContext, RayFeatureError};
-use retex::engine::geometry::sdf::{sdf_cone, shape_diameter, SdfParams};
-use retex::engine::geometry::solid_angle::{solid_angle_curvature, SolidAngleParams};
+use retex::engine::geometry::sdf::{sdf_cone, shape_diameter, shape_diameter_with, SdfParams};
+use retex::engine::geometry::solid_angle::{
+    solid_angle_curvature, solid_angle_curvature_with, SolidAngleParams,
+};
 use retex::engine::mesh::surface::Surface;
 use retex::engine::spatial::{ray_triangle, Bvh};
+
+/// Asserts `|got - want| <= tol`, naming the case.
+macro_rules! near {
+    ($got:expr, $want:expr, $tol:expr, $($ctx:tt)*) => {{
+        let (g, w, t) = ($got, $want, $tol);
+        assert!((g - w).abs() <= t, "{}: {g} vs {w} (tol {t})", format!($($ctx)*));
+    }};
+}
 
 // ---------------------------------------------------------------- shape generators
 
@@ -19,19 +31,17 @@ fn normalize(p: [f64; 3]) -> [f64; 3] {
     p.map(|c| c / l)
 }
 
-/// Orients every face so that its normal points away from the origin (star-shaped shapes).
+/// Orients every face so that its normal points away from the origin (star-shaped shapes):
+/// the triple product `a · (b × c)` must be positive.
 fn orient_outward(positions: &[[f32; 3]], faces: &mut [[u32; 3]]) {
     for f in faces.iter_mut() {
         let [a, b, c] = f.map(|v| positions[v as usize].map(|x| x as f64));
-        let e1 = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-        let e2 = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-        let n = [
-            e1[1] * e2[2] - e1[2] * e2[1],
-            e1[2] * e2[0] - e1[0] * e2[2],
-            e1[0] * e2[1] - e1[1] * e2[0],
+        let bc = [
+            b[1] * c[2] - b[2] * c[1],
+            b[2] * c[0] - b[0] * c[2],
+            b[0] * c[1] - b[1] * c[0],
         ];
-        let m: Vec<f64> = (0..3).map(|k| a[k] + b[k] + c[k]).collect();
-        if n[0] * m[0] + n[1] * m[1] + n[2] * m[2] < 0.0 {
+        if a[0] * bc[0] + a[1] * bc[1] + a[2] * bc[2] < 0.0 {
             f.swap(1, 2);
         }
     }
@@ -39,45 +49,33 @@ fn orient_outward(positions: &[[f32; 3]], faces: &mut [[u32; 3]]) {
 
 /// Icosahedron subdivided `levels` times, vertices on the sphere of radius `rho` at the origin.
 fn icosphere(levels: u32, rho: f64) -> Surface {
+    // The 12 cyclic permutations of (0, ±1, ±φ); faces are the triples at mutual distance 2.
     let t = (1.0 + 5f64.sqrt()) / 2.0;
-    let mut pos: Vec<[f64; 3]> = [
-        [-1.0, t, 0.0],
-        [1.0, t, 0.0],
-        [-1.0, -t, 0.0],
-        [1.0, -t, 0.0],
-        [0.0, -1.0, t],
-        [0.0, 1.0, t],
-        [0.0, -1.0, -t],
-        [0.0, 1.0, -t],
-        [t, 0.0, -1.0],
-        [t, 0.0, 1.0],
-        [-t, 0.0, -1.0],
-        [-t, 0.0, 1.0],
-    ]
-    .map(normalize)
-    .to_vec();
-    let mut faces: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
+    let mut base = Vec::new();
+    for k in 0..3 {
+        for (u, w) in [(1.0, t), (-1.0, t), (1.0, -t), (-1.0, -t)] {
+            let mut p = [0.0; 3];
+            p[(k + 1) % 3] = u;
+            p[(k + 2) % 3] = w;
+            base.push(p);
+        }
+    }
+    let edge = |a: usize, b: usize| {
+        let d: f64 = (0..3).map(|j| (base[a][j] - base[b][j]).powi(2)).sum();
+        (d - 4.0).abs() < 1e-9
+    };
+    let mut faces: Vec<[u32; 3]> = Vec::new();
+    for i in 0..12 {
+        for j in i + 1..12 {
+            for k in j + 1..12 {
+                if edge(i, j) && edge(j, k) && edge(i, k) {
+                    faces.push([i as u32, j as u32, k as u32]);
+                }
+            }
+        }
+    }
+    assert_eq!(faces.len(), 20);
+    let mut pos: Vec<[f64; 3]> = base.into_iter().map(normalize).collect();
     for _ in 0..levels {
         let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
         let mut next = Vec::with_capacity(faces.len() * 4);
@@ -130,44 +128,19 @@ fn uv_sphere(rings: u32, segments: u32, radius: impl Fn(f64, f64) -> f64) -> Sur
     }
     for i in 1..rings - 1 {
         for j in 0..segments {
-            let (a, b, c, d) = (
-                ring(i, j),
-                ring(i, j + 1),
-                ring(i + 1, j),
-                ring(i + 1, j + 1),
-            );
-            faces.push([a, c, b]);
-            faces.push([b, c, d]);
+            let q = [j, j + 1].map(|j| [ring(i, j), ring(i + 1, j)]);
+            faces.push([q[0][0], q[0][1], q[1][0]]);
+            faces.push([q[1][0], q[0][1], q[1][1]]);
         }
     }
     orient_outward(&pos, &mut faces);
     Surface::from_triangles(pos, faces)
 }
 
-/// Square grid `n × n` cells over `[-half, half]²` at z = 0, normal +z.
-fn plane(n: u32, half: f32) -> Surface {
-    let mut pos = Vec::new();
-    for i in 0..=n {
-        for j in 0..=n {
-            let x = -half + 2.0 * half * i as f32 / n as f32;
-            let y = -half + 2.0 * half * j as f32 / n as f32;
-            pos.push([x, y, 0.0]);
-        }
-    }
-    let id = |i: u32, j: u32| i * (n + 1) + j;
-    let mut faces = Vec::new();
-    for i in 0..n {
-        for j in 0..n {
-            faces.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
-            faces.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
-        }
-    }
-    Surface::from_triangles(pos, faces)
-}
-
-/// Box `[-1, 1]³` with each face an `n × n` grid, welded through a lattice key. `skip_top` leaves
-/// the `z = 1` face out (an open cup); `inward` points the normals into the box.
-fn lattice_box(n: u32, skip_top: bool, inward: bool) -> Surface {
+/// Box `[-1, 1]³` with each face an `n × n` grid, welded through a lattice key. Only the faces
+/// `(axis, side)` with `keep(axis, side)` are made (`side` 0 or `n`); `inward` points the
+/// normals into the box.
+fn lattice_box(n: u32, keep: impl Fn(usize, u32) -> bool, inward: bool) -> Surface {
     let mut ids: HashMap<[u32; 3], u32> = HashMap::new();
     let mut pos: Vec<[f32; 3]> = Vec::new();
     let mut faces: Vec<[u32; 3]> = Vec::new();
@@ -179,7 +152,7 @@ fn lattice_box(n: u32, skip_top: bool, inward: bool) -> Surface {
     };
     for axis in 0..3 {
         for side in [0, n] {
-            if skip_top && axis == 2 && side == n {
+            if !keep(axis, side) {
                 continue;
             }
             let (u, w) = ((axis + 1) % 3, (axis + 2) % 3);
@@ -223,40 +196,15 @@ fn len(v: [f32; 3]) -> f32 {
 // ---------------------------------------------------------------- BVH queries and ray sets
 
 #[test]
-fn generators_are_closed_and_outward() {
-    // Signed volume of the icosphere is close to the ball's and positive (outward winding).
-    let s = icosphere(3, 1.0);
-    let vol: f64 = s
-        .faces
-        .iter()
-        .map(|f| {
-            let [a, b, c] = f.map(|v| s.positions[v as usize].map(|x| x as f64));
-            (a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
-                + a[2] * (b[0] * c[1] - b[1] * c[0]))
-                / 6.0
-        })
-        .sum();
-    // Inscribed: slightly less than the ball (by ~1% at this level).
-    let ball = 4.0 * PI / 3.0;
-    assert!(vol < ball && vol > 0.985 * ball, "volume {vol}");
-    let b = lattice_box(4, false, false);
-    assert_eq!(b.vertex_count(), 6 * 16 + 2);
-    let n = b.vertex_normals();
-    let top = vertex_near(&b, [0.0, 0.0, 1.0]);
-    assert!(n[top][2] > 0.999, "{:?}", n[top]);
-}
-
-#[test]
 fn fibonacci_set_is_unit_and_balanced() {
     let d = fibonacci_sphere(200);
-    let mut mean = [0.0f64; 3];
-    for v in &d {
-        assert!((len(*v) - 1.0).abs() < 1e-5);
-        for k in 0..3 {
-            mean[k] += v[k] as f64 / 200.0;
-        }
-    }
-    assert!(mean.iter().all(|m| m.abs() < 0.01), "{mean:?}");
+    assert!(d.iter().all(|v| (len(*v) - 1.0).abs() < 1e-5));
+    let mean = (0..3).map(|k| d.iter().map(|v| v[k]).sum::<f32>() / 200.0);
+    assert!(
+        mean.clone().all(|m| m.abs() < 0.01),
+        "{:?}",
+        mean.collect::<Vec<_>>()
+    );
     assert_eq!(d.iter().filter(|v| v[2] > 0.0).count(), 100);
 }
 
@@ -329,7 +277,11 @@ fn solid(s: &Surface, radii: Vec<f32>, rays: usize) -> (Vec<f32>, Vec<f32>) {
 
 #[test]
 fn solid_angle_is_one_half_on_a_large_plane() {
-    let s = plane(40, 10.0);
+    // The z = 1 face of a 40 × 40 lattice box, made 20 × 20 and flat at z = 0 (an open sheet).
+    let mut s = lattice_box(40, |axis, side| axis == 2 && side > 0, false);
+    for p in &mut s.positions {
+        *p = [10.0 * p[0], 10.0 * p[1], 0.0];
+    }
     let diag = s.diagonal();
     let (radii, values) = solid(&s, vec![0.5 / diag, 1.0 / diag, 3.0 / diag], 64);
     let k = radii.len();
@@ -340,11 +292,7 @@ fn solid_angle_is_one_half_on_a_large_plane() {
             continue;
         }
         for i in 0..k {
-            assert!(
-                (values[v * k + i] - 0.5).abs() < 1e-6,
-                "v {v} r {}",
-                radii[i]
-            );
+            near!(values[v * k + i], 0.5, 1e-6, "v {v} r {}", radii[i]);
         }
         checked += 1;
     }
@@ -353,7 +301,7 @@ fn solid_angle_is_one_half_on_a_large_plane() {
 
 #[test]
 fn solid_angle_on_a_flat_box_face_edge_and_corner() {
-    let s = lattice_box(16, false, false);
+    let s = lattice_box(16, |_, _| true, false);
     let diag = s.diagonal();
     let (_, values) = solid(&s, vec![0.25 / diag, 0.5 / diag], 256);
     for v in 0..s.vertex_count() {
@@ -362,25 +310,16 @@ fn solid_angle_on_a_flat_box_face_edge_and_corner() {
         let flat = p.iter().filter(|c| c.abs() > 0.99).count() == 1
             && p.iter().filter(|c| c.abs() <= 0.5).count() == 2;
         if flat {
-            for i in 0..2 {
-                assert!((values[v * 2 + i] - 0.5).abs() < 1e-6, "v {v} {p:?}");
-            }
+            near!(values[v * 2], 0.5, 1e-6, "v {v} {p:?}");
+            near!(values[v * 2 + 1], 0.5, 1e-6, "v {v} {p:?}");
         }
     }
     // A convex right-angled edge encloses a quarter, a corner an eighth (quadrature ± 2/N).
     let edge = vertex_near(&s, [1.0, 1.0, 0.0]);
     let corner = vertex_near(&s, [1.0, 1.0, 1.0]);
     for i in 0..2 {
-        assert!(
-            (values[edge * 2 + i] - 0.25).abs() < 0.02,
-            "{}",
-            values[edge * 2 + i]
-        );
-        assert!(
-            (values[corner * 2 + i] - 0.125).abs() < 0.02,
-            "{}",
-            values[corner * 2 + i]
-        );
+        near!(values[edge * 2 + i], 0.25, 0.02, "edge {i}");
+        near!(values[corner * 2 + i], 0.125, 0.02, "corner {i}");
     }
 }
 
@@ -407,31 +346,18 @@ fn solid_angle_on_spheres_matches_one_half_minus_r_over_4_rho() {
         for v in 0..s.vertex_count() {
             for i in 0..k {
                 let want = sphere_fraction(radii[i], rho);
-                let got = values[v * k + i];
-                assert!(
-                    (got - want).abs() < 0.01,
-                    "{name} v {v} r {}: {got} vs {want}",
-                    radii[i]
-                );
+                near!(values[v * k + i], want, 0.01, "{name} v {v} r {}", radii[i]);
             }
         }
         // Default 64 rays: the mean within 0.01 (per vertex the quadrature error is ≤ ~1/64).
         let (radii, values) = solid(&s, rel, 64);
         for i in 0..k {
             let want = sphere_fraction(radii[i], rho);
-            let mean = (0..s.vertex_count())
-                .map(|v| values[v * k + i])
-                .sum::<f32>()
-                / s.vertex_count() as f32;
-            assert!(
-                (mean - want).abs() < 0.01,
-                "{name} r {}: mean {mean} vs {want}",
-                radii[i]
-            );
-            let worst = (0..s.vertex_count())
-                .map(|v| (values[v * k + i] - want).abs())
-                .fold(0.0f32, f32::max);
-            assert!(worst < 0.025, "{name} r {}: worst {worst}", radii[i]);
+            let col: Vec<f32> = values.iter().skip(i).step_by(k).copied().collect();
+            let mean = col.iter().sum::<f32>() / col.len() as f32;
+            near!(mean, want, 0.01, "{name} mean at r {}", radii[i]);
+            let worst = col.iter().map(|x| (x - want).abs()).fold(0.0f32, f32::max);
+            near!(worst, 0.0, 0.025, "{name} worst at r {}", radii[i]);
         }
     }
 }
@@ -446,8 +372,7 @@ fn convex_shapes_see_their_full_hemisphere() {
         ..Default::default()
     };
     // Sphere: band 0 is the full hemisphere (the polyhedron's vertices see slightly more), and
-    // band 1 is √(3/4π)·π·n.
-    // At a vertex of this icosphere the faces dip below the tangent plane by about half the
+    // band 1 is √(3/4π)·π·n. At a vertex of this icosphere the faces dip below the tangent plane by about half the
     // edge's central angle (0.033 rad), which bounds the extra visibility.
     let s = icosphere(4, 1.0);
     let occ = directional_occlusion(&s, None, &params, &Control::new()).unwrap();
@@ -457,17 +382,13 @@ fn convex_shapes_see_their_full_hemisphere() {
         assert!((1.0 - 1e-5..=1.05).contains(&vis), "v {v}: {vis}");
         let b = occ.band1_vector(v);
         let want = (3.0 / (4.0 * PI)).sqrt() as f32 * std::f32::consts::PI;
-        assert!(
-            (len(b) - want).abs() < 0.03 * want,
-            "v {v}: |b1| {} vs {want}",
-            len(b)
-        );
+        near!(len(b), want, 0.03 * want, "v {v}: |b1|");
         let n = normals[v];
         let cos = (b[0] * n[0] + b[1] * n[1] + b[2] * n[2]) / len(b);
         assert!(cos > 0.999, "v {v}: cos {cos}");
     }
     // Flat face of a box: exactly half of the rays, with the default count.
-    let b = lattice_box(8, false, false);
+    let b = lattice_box(8, |_, _| true, false);
     let occ =
         directional_occlusion(&b, None, &OcclusionParams::default(), &Control::new()).unwrap();
     let top = vertex_near(&b, [0.0, 0.0, 1.0]);
@@ -476,7 +397,7 @@ fn convex_shapes_see_their_full_hemisphere() {
 
 #[test]
 fn the_bottom_of_a_cup_is_more_occluded() {
-    let cup = lattice_box(8, true, true);
+    let cup = lattice_box(8, |axis, side| axis != 2 || side == 0, true);
     let bottom = vertex_near(&cup, [0.0, 0.0, -1.0]);
     let occ =
         directional_occlusion(&cup, None, &OcclusionParams::default(), &Control::new()).unwrap();
@@ -488,10 +409,13 @@ fn the_bottom_of_a_cup_is_more_occluded() {
         ..Default::default()
     };
     let occ = directional_occlusion(&cup, None, &fine, &Control::new()).unwrap();
-    let omega = 4.0 * (4.0f64 / 20.0).asin();
-    let want = (omega / (2.0 * PI)) as f32;
-    let got = occ.visibility(bottom);
-    assert!((got - want).abs() < 0.03 * want, "{got} vs {want}");
+    let want = (4.0 * (4.0f64 / 20.0).asin() / (2.0 * PI)) as f32;
+    near!(
+        occ.visibility(bottom),
+        want,
+        0.03 * want,
+        "cup bottom visibility"
+    );
     let b1 = occ.band1_vector(bottom);
     assert!(
         b1[2] > 0.0 && b1[0].abs() < 0.05 * b1[2] && b1[1].abs() < 0.05 * b1[2],
@@ -501,8 +425,11 @@ fn the_bottom_of_a_cup_is_more_occluded() {
 
 // ---------------------------------------------------------------- shape diameter
 
-/// The paper's estimator, written out independently: median ± 1 std filter, 1/θ weights.
-fn expected_sdf(lengths: &[(f64, f64)]) -> f64 {
+/// The paper's estimator over the default cone when a ray at angle θ has length `len(θ)`,
+/// written out independently: median ± 1 std filter, 1/θ weights.
+fn expected_sdf(len: impl Fn(f64) -> f64) -> f64 {
+    let cone = sdf_cone(&SdfParams::default());
+    let lengths: Vec<(f64, f64)> = cone.iter().map(|c| (len(c.1 as f64), c.1 as f64)).collect();
     let mut l: Vec<f64> = lengths.iter().map(|x| x.0).collect();
     l.sort_by(f64::total_cmp);
     let n = l.len();
@@ -525,23 +452,11 @@ fn sdf_on_a_sphere_is_its_diameter_up_to_cone_averaging() {
     // Default cone (120°, 30 rays): a ray at angle θ has length 2ρ cos θ, so the value is 2ρ
     // times the filtered weighted mean of cos θ (1.535ρ = 0.767 × 2ρ). The mesh is inscribed, so
     // chords are short by at most ~1e-3ρ; tolerance 1%.
-    let params = SdfParams::default();
-    let predicted = expected_sdf(
-        &sdf_cone(&params)
-            .iter()
-            .map(|&(_, th)| (2.0 * rho * (th as f64).cos(), th as f64))
-            .collect::<Vec<_>>(),
-    );
-    assert!(
-        predicted > 1.5 * rho && predicted < 2.0 * rho,
-        "{predicted}"
-    );
-    let sdf = shape_diameter(&s, None, &params, &Control::new()).unwrap();
+    let predicted = expected_sdf(|th| 2.0 * rho * th.cos());
+    near!(predicted, 1.535 * rho, 1e-3, "prediction");
+    let sdf = shape_diameter(&s, None, &SdfParams::default(), &Control::new()).unwrap();
     for (v, &x) in sdf.iter().enumerate() {
-        assert!(
-            ((x as f64) - predicted).abs() < 0.01 * predicted,
-            "v {v}: {x} vs {predicted}"
-        );
+        near!(x as f64, predicted, 0.01 * predicted, "v {v}");
     }
     // A narrow cone (10°) removes the bias: within 1% of 2ρ.
     let narrow = SdfParams {
@@ -550,7 +465,7 @@ fn sdf_on_a_sphere_is_its_diameter_up_to_cone_averaging() {
     };
     let sdf = shape_diameter(&s, None, &narrow, &Control::new()).unwrap();
     for (v, &x) in sdf.iter().enumerate() {
-        assert!((x as f64 - 2.0 * rho).abs() < 0.02 * rho, "v {v}: {x}");
+        near!(x as f64, 2.0 * rho, 0.02 * rho, "v {v}");
     }
 }
 
@@ -558,7 +473,7 @@ fn sdf_on_a_sphere_is_its_diameter_up_to_cone_averaging() {
 fn sdf_measures_the_thickness_of_a_slab() {
     // A flat box 4 × 4 × 0.5: at the centre of a big face every ray of the cone reaches the
     // opposite face, at 0.5 / cos θ; the value is the paper's estimator over those (1%).
-    let mut s = lattice_box(16, false, false);
+    let mut s = lattice_box(16, |_, _| true, false);
     for p in &mut s.positions {
         p[0] *= 2.0;
         p[1] *= 2.0;
@@ -566,21 +481,10 @@ fn sdf_measures_the_thickness_of_a_slab() {
     }
     let v = vertex_near(&s, [0.0, 0.0, 0.25]);
     let sdf = shape_diameter(&s, None, &SdfParams::default(), &Control::new()).unwrap();
-    let predicted = expected_sdf(
-        &sdf_cone(&SdfParams::default())
-            .iter()
-            .map(|&(_, th)| (0.5 / (th as f64).cos(), th as f64))
-            .collect::<Vec<_>>(),
-    );
+    let predicted = expected_sdf(|th| 0.5 / th.cos());
     assert!(predicted > 0.5 && predicted < 0.7, "{predicted}");
-    assert!(
-        (sdf[v] as f64 - predicted).abs() < 0.01 * predicted,
-        "{} vs {predicted}",
-        sdf[v]
-    );
+    near!(sdf[v] as f64, predicted, 0.01 * predicted, "slab centre");
 }
-
-// ---------------------------------------------------------------- determinism, errors
 
 #[test]
 fn features_are_identical_for_one_and_two_threads() {
@@ -643,78 +547,52 @@ fn bad_params_normals_and_cancellation_are_errors() {
     assert_eq!(p.cone_angle, 120.0);
 }
 
-// ---------------------------------------------------------------- benchmark
-
-fn vm_hwm_kib() -> u64 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("VmHWM:"))
-                .and_then(|l| l.split_whitespace().nth(1)?.parse().ok())
-        })
+fn vm_hwm_mib() -> u64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    let line = status
+        .lines()
+        .find(|l| l.starts_with("VmHWM:"))
+        .unwrap_or("");
+    line.split_whitespace()
+        .nth(1)
+        .and_then(|x| x.parse().ok())
         .unwrap_or(0)
+        / 1024
 }
 
 /// `cargo test --release --no-default-features --test ray_features -- --ignored --nocapture`
 #[test]
 #[ignore = "benchmark: run with --release"]
 fn bench_solid_angle_4_radii_and_occlusion_64_rays_on_64k_vertices() {
-    use std::time::Instant;
     // A bumpy sphere (concave and convex regions) with 65 516 vertices.
     let s = uv_sphere(180, 366, |th, ph| {
         1.0 + 0.15 * (5.0 * th).sin() * (4.0 * ph).cos()
             + 0.04 * (17.0 * th).sin() * (13.0 * ph).sin()
     });
-    println!(
-        "mesh: {} vertices, {} faces, {} threads",
-        s.vertex_count(),
-        s.face_count(),
-        rayon::current_num_threads()
-    );
-    let c = Control::new();
-    let mut totals = Vec::new();
+    let threads = rayon::current_num_threads();
+    println!("mesh: {} vertices, {threads} threads", s.vertex_count());
+    let (c, mut totals) = (Control::new(), Vec::new());
+    let secs = |t: std::time::Instant| t.elapsed().as_secs_f64();
     for run in 0..5 {
-        let t0 = Instant::now();
+        let t = std::time::Instant::now();
         let ctx = RayContext::new(&s, None).unwrap();
-        let t1 = Instant::now();
-        let sa = retex::engine::geometry::solid_angle::solid_angle_curvature_with(
-            &ctx,
-            &SolidAngleParams::default(),
-            &c,
-        )
-        .unwrap();
-        let t2 = Instant::now();
-        let occ = retex::engine::geometry::occlusion::directional_occlusion_with(
-            &ctx,
-            &OcclusionParams::default(),
-            &c,
-        )
-        .unwrap();
-        let t3 = Instant::now();
-        let sdf =
-            retex::engine::geometry::sdf::shape_diameter_with(&ctx, &SdfParams::default(), &c)
-                .unwrap();
-        let t4 = Instant::now();
-        let total = (t3 - t0).as_secs_f64();
+        let (t_ctx, t) = (secs(t), std::time::Instant::now());
+        solid_angle_curvature_with(&ctx, &SolidAngleParams::default(), &c).unwrap();
+        let (t_sa, t) = (secs(t), std::time::Instant::now());
+        directional_occlusion_with(&ctx, &OcclusionParams::default(), &c).unwrap();
+        let (t_occ, t) = (secs(t), std::time::Instant::now());
+        shape_diameter_with(&ctx, &SdfParams::default(), &c).unwrap();
+        let (t_sdf, total) = (secs(t), t_ctx + t_sa + t_occ);
         totals.push(total);
         println!(
-            "run {run}: context (bvh, normals) {:.3} s, solid angle 4 radii x 64 rays {:.3} s, \
-             occlusion 64 rays {:.3} s => {total:.3} s; sdf 30 rays {:.3} s \
-             (checks: {} {} {})",
-            (t1 - t0).as_secs_f64(),
-            (t2 - t1).as_secs_f64(),
-            (t3 - t2).as_secs_f64(),
-            (t4 - t3).as_secs_f64(),
-            sa.values.len(),
-            occ.coefficients.len(),
-            sdf.len()
+            "run {run}: context {t_ctx:.3} s, solid angle (4 radii, 64 rays) {t_sa:.3} s, \
+             occlusion (64 rays) {t_occ:.3} s, total {total:.3} s; sdf (30 rays) {t_sdf:.3} s"
         );
     }
     totals.sort_by(f64::total_cmp);
     println!(
-        "median solid angle + occlusion (incl. context): {:.3} s; VmHWM {} MiB",
+        "median total {:.3} s; VmHWM {} MiB",
         totals[2],
-        vm_hwm_kib() / 1024
+        vm_hwm_mib()
     );
 }
