@@ -24,11 +24,14 @@ macro_rules! near {
     }};
 }
 
-// ---------------------------------------------------------------- shape generators
-
 fn normalize(p: [f64; 3]) -> [f64; 3] {
     let l = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
     p.map(|c| c / l)
+}
+
+/// Radius `1 + a sin(m θ) cos(n φ)` for [`uv_sphere`].
+fn bumpy(a: f64, m: f64, n: f64) -> impl Fn(f64, f64) -> f64 {
+    move |th, ph| 1.0 + a * (m * th).sin() * (n * ph).cos()
 }
 
 /// Orients every face so that its normal points away from the origin (star-shaped shapes):
@@ -193,8 +196,6 @@ fn len(v: [f32; 3]) -> f32 {
     (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
 }
 
-// ---------------------------------------------------------------- BVH queries and ray sets
-
 #[test]
 fn fibonacci_set_is_unit_and_balanced() {
     let d = fibonacci_sphere(200);
@@ -240,9 +241,7 @@ fn rays_from_inside_a_closed_sphere_always_hit_at_the_chord() {
 
 #[test]
 fn all_hits_match_brute_force() {
-    let s = uv_sphere(12, 20, |th, ph| {
-        1.0 + 0.3 * (3.0 * th).sin() * (2.0 * ph).cos()
-    });
+    let s = uv_sphere(12, 20, bumpy(0.3, 3.0, 2.0));
     let bvh = Bvh::build(&s.positions, &s.faces);
     for (i, d) in fibonacci_sphere(300).iter().enumerate() {
         let o = [3.0 * d[0], 3.0 * d[1], 3.0 * d[2]];
@@ -250,20 +249,17 @@ fn all_hits_match_brute_force() {
         let mut got = Vec::new();
         bvh.ray_for_each_hit(o, dir, 0.0, 5.0, |h| got.push(h.face));
         got.sort_unstable();
-        let mut want: Vec<u32> = (0..s.face_count())
+        let want: Vec<u32> = (0..s.face_count())
             .filter(|&f| {
                 let [a, b, c] = s.face_positions(f);
                 ray_triangle(o, dir, a, b, c).is_some_and(|(t, _)| t > 0.0 && t <= 5.0)
             })
             .map(|f| f as u32)
             .collect();
-        want.sort_unstable();
         assert_eq!(got, want, "ray {i}");
         assert_eq!(bvh.ray_hits_any(o, dir, 0.0, 5.0), !want.is_empty());
     }
 }
-
-// ---------------------------------------------------------------- solid-angle curvature
 
 fn solid(s: &Surface, radii: Vec<f32>, rays: usize) -> (Vec<f32>, Vec<f32>) {
     let p = SolidAngleParams {
@@ -362,8 +358,6 @@ fn solid_angle_on_spheres_matches_one_half_minus_r_over_4_rho() {
     }
 }
 
-// ---------------------------------------------------------------- occlusion
-
 #[test]
 fn convex_shapes_see_their_full_hemisphere() {
     let rays = 256;
@@ -422,8 +416,6 @@ fn the_bottom_of_a_cup_is_more_occluded() {
         "{b1:?}"
     );
 }
-
-// ---------------------------------------------------------------- shape diameter
 
 /// The paper's estimator over the default cone when a ray at angle θ has length `len(θ)`,
 /// written out independently: median ± 1 std filter, 1/θ weights.
@@ -488,9 +480,7 @@ fn sdf_measures_the_thickness_of_a_slab() {
 
 #[test]
 fn features_are_identical_for_one_and_two_threads() {
-    let s = uv_sphere(24, 48, |th, ph| {
-        1.0 + 0.2 * (4.0 * th).sin() * (3.0 * ph).cos()
-    });
+    let s = uv_sphere(24, 48, bumpy(0.2, 4.0, 3.0));
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -547,17 +537,26 @@ fn bad_params_normals_and_cancellation_are_errors() {
     assert_eq!(p.cone_angle, 120.0);
 }
 
-fn vm_hwm_mib() -> u64 {
+/// Peak resident memory (VmHWM, MiB) and process CPU seconds (user + system: fields 14 and 15
+/// of /proc/self/stat, 100 ticks/s). The machine is shared, so wall time overstates the cost.
+fn usage() -> (u64, f64) {
     let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
-    let line = status
-        .lines()
-        .find(|l| l.starts_with("VmHWM:"))
-        .unwrap_or("");
-    line.split_whitespace()
-        .nth(1)
-        .and_then(|x| x.parse().ok())
-        .unwrap_or(0)
-        / 1024
+    let hwm = status.lines().find_map(|l| l.strip_prefix("VmHWM:"));
+    let hwm: u64 = hwm
+        .and_then(|x| x.split_whitespace().next()?.parse().ok())
+        .unwrap_or(0);
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let f = stat
+        .rsplit(')')
+        .next()
+        .unwrap_or("")
+        .split_whitespace()
+        .skip(11)
+        .take(2);
+    (
+        hwm / 1024,
+        f.filter_map(|x| x.parse::<f64>().ok()).sum::<f64>() / 100.0,
+    )
 }
 
 /// `cargo test --release --no-default-features --test ray_features -- --ignored --nocapture`
@@ -574,25 +573,26 @@ fn bench_solid_angle_4_radii_and_occlusion_64_rays_on_64k_vertices() {
     let (c, mut totals) = (Control::new(), Vec::new());
     let secs = |t: std::time::Instant| t.elapsed().as_secs_f64();
     for run in 0..5 {
-        let t = std::time::Instant::now();
+        let (t, c0) = (std::time::Instant::now(), usage().1);
         let ctx = RayContext::new(&s, None).unwrap();
         let (t_ctx, t) = (secs(t), std::time::Instant::now());
         solid_angle_curvature_with(&ctx, &SolidAngleParams::default(), &c).unwrap();
         let (t_sa, t) = (secs(t), std::time::Instant::now());
         directional_occlusion_with(&ctx, &OcclusionParams::default(), &c).unwrap();
-        let (t_occ, t) = (secs(t), std::time::Instant::now());
+        let (t_occ, t, cpu_total) = (secs(t), std::time::Instant::now(), usage().1 - c0);
         shape_diameter_with(&ctx, &SdfParams::default(), &c).unwrap();
         let (t_sdf, total) = (secs(t), t_ctx + t_sa + t_occ);
         totals.push(total);
         println!(
             "run {run}: context {t_ctx:.3} s, solid angle (4 radii, 64 rays) {t_sa:.3} s, \
-             occlusion (64 rays) {t_occ:.3} s, total {total:.3} s; sdf (30 rays) {t_sdf:.3} s"
+             occlusion (64 rays) {t_occ:.3} s, total {total:.3} s wall, {cpu_total:.2} s cpu; \
+             sdf (30 rays) {t_sdf:.3} s"
         );
     }
     totals.sort_by(f64::total_cmp);
     println!(
-        "median total {:.3} s; VmHWM {} MiB",
+        "median total {:.3} s wall; VmHWM {} MiB",
         totals[2],
-        vm_hwm_mib()
+        usage().0
     );
 }

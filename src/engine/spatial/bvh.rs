@@ -795,24 +795,26 @@ impl Bvh {
             } else {
                 let l = node + 1;
                 let r = n.index as usize;
-                let el = ray.enter(&self.nodes[l], t_min, t_max).is_some();
-                let er = ray.enter(&self.nodes[r], t_min, t_max).is_some();
+                // Nearer child first, so an any-hit query tends to stop early.
+                let el = ray.enter(&self.nodes[l], t_min, t_max);
+                let er = ray.enter(&self.nodes[r], t_min, t_max);
                 match (el, er) {
-                    (true, true) => {
-                        stack[sp] = r as u32;
+                    (Some(tl), Some(tr)) => {
+                        let (near, far) = if tl <= tr { (l, r) } else { (r, l) };
+                        stack[sp] = far as u32;
                         sp += 1;
+                        node = near;
+                        continue;
+                    }
+                    (Some(_), None) => {
                         node = l;
                         continue;
                     }
-                    (true, false) => {
-                        node = l;
-                        continue;
-                    }
-                    (false, true) => {
+                    (None, Some(_)) => {
                         node = r;
                         continue;
                     }
-                    (false, false) => {}
+                    (None, None) => {}
                 }
             }
             if sp == 0 {
