@@ -723,4 +723,105 @@ impl Bvh {
             }
         }
     }
+
+    /// Calls `visit` for every hit of the ray `origin + t * dir` with `t` in `(t_min, t_max]`,
+    /// either side of the triangles, in no particular order (traversal order, which is fixed for
+    /// a given tree and ray). A ray through an edge or vertex shared by several triangles reports
+    /// each of them. For crossing counts (inside/outside tests) and hit-distance lists.
+    pub fn ray_for_each_hit(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        t_min: f32,
+        t_max: f32,
+        mut visit: impl FnMut(RayHit),
+    ) {
+        self.ray_visit(origin, dir, t_min, t_max, |hit| {
+            visit(hit);
+            false
+        });
+    }
+
+    /// Whether the ray `origin + t * dir` hits any triangle with `t` in `(t_min, t_max]` (either
+    /// side). Stops at the first hit found, so it is cheaper than [`Bvh::ray_cast`] for
+    /// visibility tests.
+    pub fn ray_hits_any(&self, origin: [f32; 3], dir: [f32; 3], t_min: f32, t_max: f32) -> bool {
+        let mut found = false;
+        self.ray_visit(origin, dir, t_min, t_max, |_| {
+            found = true;
+            true
+        });
+        found
+    }
+
+    /// Visits hits in `(t_min, t_max]` until `visit` returns `true`.
+    fn ray_visit(
+        &self,
+        origin: [f32; 3],
+        dir: [f32; 3],
+        t_min: f32,
+        t_max: f32,
+        mut visit: impl FnMut(RayHit) -> bool,
+    ) {
+        if self.nodes.is_empty() || t_min.is_nan() || t_max.is_nan() || t_max <= t_min {
+            return;
+        }
+        let inv = dir.map(|d| 1.0 / d);
+        let flat = inv.map(|i| !i.is_finite());
+        let ray = Ray { origin, inv, flat };
+        if ray.enter(&self.nodes[0], t_min, t_max).is_none() {
+            return;
+        }
+        let mut stack = [0u32; STACK];
+        let mut sp = 0usize;
+        let mut node = 0usize;
+        loop {
+            let n = &self.nodes[node];
+            if n.count > 0 {
+                let first = n.index as usize;
+                for k in first..first + n.count as usize {
+                    let [a, b, c] = self.tris[k];
+                    let Some((t, bary)) = ray_triangle(origin, dir, a, b, c) else {
+                        continue;
+                    };
+                    if t <= t_min || t > t_max {
+                        continue;
+                    }
+                    let face = self.faces[k];
+                    if visit(RayHit { face, t, bary }) {
+                        return;
+                    }
+                }
+            } else {
+                let l = node + 1;
+                let r = n.index as usize;
+                // Nearer child first, so an any-hit query tends to stop early.
+                let el = ray.enter(&self.nodes[l], t_min, t_max);
+                let er = ray.enter(&self.nodes[r], t_min, t_max);
+                match (el, er) {
+                    (Some(tl), Some(tr)) => {
+                        let (near, far) = if tl <= tr { (l, r) } else { (r, l) };
+                        stack[sp] = far as u32;
+                        sp += 1;
+                        node = near;
+                        continue;
+                    }
+                    (Some(_), None) => {
+                        node = l;
+                        continue;
+                    }
+                    (None, Some(_)) => {
+                        node = r;
+                        continue;
+                    }
+                    (None, None) => {}
+                }
+            }
+            if sp == 0 {
+                return;
+            }
+            sp -= 1;
+            node = stack[sp] as usize;
+        }
+    }
 }
