@@ -14,9 +14,10 @@
 //! - no opposite corner would be left with too few faces (an interior corner with three faces is
 //!   a tetrahedron; a boundary corner with one face would become isolated);
 //! - boundaries stay on boundaries: an interior edge between two boundary vertices is rejected
-//!   (it would pinch the surface), a boundary edge collapses to its midpoint, and an edge from a
-//!   boundary vertex to an interior one collapses onto the boundary vertex (the one exception to
-//!   the midpoint rule);
+//!   (it would pinch the surface); a boundary edge collapses to its midpoint, and only where the
+//!   boundary turns by at most `max_boundary_turn_degrees` at both ends (so corners stay and the
+//!   midpoint stays on the boundary curve); an edge from a boundary vertex to an interior one
+//!   collapses onto the boundary vertex (the one exception to the midpoint rule);
 //! - no surviving face turns by more than `max_normal_change_degrees` (so none flips), and no
 //!   surviving face drops below `min_triangle_quality` unless it was already worse. Quality is
 //!   `4√3·area / (l₀² + l₁² + l₂²)`: 1 for an equilateral triangle, 0 for a degenerate one.
@@ -45,6 +46,8 @@ pub(crate) struct CollapseRules {
     pub cos_max_normal_change: f64,
     /// Smallest allowed triangle quality (unless a face was already worse).
     pub min_quality: f64,
+    /// `cos` of the largest boundary turning angle at either end of a collapsed boundary edge.
+    pub cos_max_boundary_turn: f64,
 }
 
 /// Result of one decimation step.
@@ -227,6 +230,31 @@ impl Mesh {
         out.dedup();
     }
 
+    /// The other end of the boundary edge at `v` that does not lead to `other` (`None` when `v`
+    /// does not have exactly two boundary edges).
+    fn boundary_neighbour(&self, v: u32, other: u32) -> Option<u32> {
+        let mut found = None;
+        let mut count = 0;
+        for &f in &self.vfaces[v as usize] {
+            for &x in &self.faces[f as usize] {
+                if x == v {
+                    continue;
+                }
+                let shared = self.vfaces[v as usize]
+                    .iter()
+                    .filter(|&&g| self.faces[g as usize].contains(&x))
+                    .count();
+                if shared == 1 {
+                    count += 1;
+                    if x != other {
+                        found = Some(x);
+                    }
+                }
+            }
+        }
+        (count == 2).then_some(found).flatten()
+    }
+
     /// Checks the collapse of `(a, b)`; on success returns the new position of the survivor.
     fn admissible(
         &self,
@@ -290,6 +318,20 @@ impl Mesh {
         }
         // Placement.
         let (pa, pb) = (self.pos[ai], self.pos[bi]);
+        if boundary_edge {
+            // The boundary must run nearly straight through both ends, so the midpoint stays on
+            // the boundary curve (corners never move).
+            let d = sub(pb, pa);
+            for (v, other, dir) in [(a, b, 1.0), (b, a, -1.0)] {
+                let w = self.boundary_neighbour(v, other)?;
+                let e = sub(self.pos[v as usize], self.pos[w as usize]);
+                let e = [e[0] * dir, e[1] * dir, e[2] * dir];
+                let (le, ld) = (dot(e, e).sqrt(), dot(d, d).sqrt());
+                if dot(e, d) < rules.cos_max_boundary_turn * le * ld {
+                    return None;
+                }
+            }
+        }
         let p = if boundary_edge || self.boundary[ai] == self.boundary[bi] {
             [
                 0.5 * (pa[0] + pb[0]),

@@ -44,6 +44,10 @@ pub struct HierarchyParams {
     /// Largest allowed rotation of a face normal by one collapse, degrees (anything above 90
     /// still forbids flips). Default: 60. Range: (0, 150].
     pub max_normal_change_degrees: f32,
+    /// A boundary edge collapses (to its midpoint) only where the boundary turns by at most this
+    /// many degrees at both of its ends, so boundary corners stay put and the boundary does not
+    /// shrink. Default: 20. Range: [0, 90].
+    pub max_boundary_turn_degrees: f32,
 }
 
 impl Default for HierarchyParams {
@@ -53,6 +57,7 @@ impl Default for HierarchyParams {
             min_vertices: 128,
             min_triangle_quality: 0.2,
             max_normal_change_degrees: 60.0,
+            max_boundary_turn_degrees: 20.0,
         }
     }
 }
@@ -151,6 +156,7 @@ pub fn build_hierarchy(
     let rules = CollapseRules {
         cos_max_normal_change: (params.max_normal_change_degrees as f64).to_radians().cos(),
         min_quality: params.min_triangle_quality as f64,
+        cos_max_boundary_turn: (params.max_boundary_turn_degrees as f64).to_radians().cos(),
     };
     let ratio = params.target_ratio as f64;
     let floor = 0.75 * params.min_vertices as f64;
@@ -212,6 +218,10 @@ fn check_params(p: &HierarchyParams) -> Result<(), HierarchyError> {
             p.min_triangle_quality as f64,
             "[0, 0.9]",
         );
+    }
+    let t = p.max_boundary_turn_degrees;
+    if !(0.0..=90.0).contains(&t) {
+        return bad("max_boundary_turn_degrees", t as f64, "[0, 90]");
     }
     let a = p.max_normal_change_degrees;
     if !(a > 0.0 && a <= 150.0) {
