@@ -790,6 +790,30 @@ fn vm_hwm_kib() -> u64 {
         .unwrap_or(0)
 }
 
+/// Process CPU time (user + system) in milliseconds, from /proc/self/stat (10 ms ticks).
+fn cpu_ms() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let rest = stat.rsplit(')').next().unwrap_or("");
+    let f: Vec<u64> = rest
+        .split_whitespace()
+        .map(|x| x.parse().unwrap_or(0))
+        .collect();
+    // Fields 14 and 15 of the stat line are the 12th and 13th after the command name.
+    f.get(11)
+        .zip(f.get(12))
+        .map(|(u, s)| (u + s) as f64 * 10.0)
+        .unwrap_or(0.0)
+}
+
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .unwrap_or_default()
+        .split_whitespace()
+        .take(3)
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
 fn median_ms(mut f: impl FnMut()) -> f64 {
     let mut times: Vec<f64> = (0..5)
         .map(|_| {
@@ -805,6 +829,7 @@ fn median_ms(mut f: impl FnMut()) -> f64 {
 fn bench_hierarchy_on(name: &str, s: &Surface) {
     let before = vm_hwm_kib();
     let mut levels = Vec::new();
+    let cpu0 = cpu_ms();
     let ms = median_ms(|| {
         let h = build_hierarchy(s, &HierarchyParams::default(), &Control::new()).unwrap();
         levels = h
@@ -813,12 +838,14 @@ fn bench_hierarchy_on(name: &str, s: &Surface) {
             .map(|l| l.surface.positions.len())
             .collect();
     });
+    let cpu = (cpu_ms() - cpu0) / 5.0;
     eprintln!(
-        "BENCH hierarchy {name} ({} vertices): median {ms:.1} ms over 5 runs, levels {levels:?}, VmHWM {} MiB (before {} MiB), threads {}",
+        "BENCH hierarchy {name} ({} vertices): median {ms:.1} ms wall over 5 runs, mean CPU {cpu:.0} ms/run, levels {levels:?}, VmHWM {} MiB (before {} MiB), threads {}, loadavg {}",
         s.positions.len(),
         vm_hwm_kib() / 1024,
         before / 1024,
-        rayon::current_num_threads()
+        rayon::current_num_threads(),
+        load_average()
     );
 }
 
@@ -851,6 +878,7 @@ fn bench_hierarchy_koala_50k() {
 fn bench_resample_5k_to_64k() {
     let s = asset_surface("perf_skull_odedstein/skull_low_resolution_derived.glb");
     let before = vm_hwm_kib();
+    let cpu0 = cpu_ms();
     let ms = median_ms(|| {
         let r = resample(
             &s.positions,
@@ -864,6 +892,7 @@ fn bench_resample_5k_to_64k() {
         .unwrap();
         assert_eq!(r.positions.len(), 65_536);
     });
+    let cpu = (cpu_ms() - cpu0) / 5.0;
     let mut n = 0;
     let ms_refine = median_ms(|| {
         let l = edge_length_for_vertex_count(s.area(), 65_536);
@@ -878,9 +907,10 @@ fn bench_resample_5k_to_64k() {
         n = r.positions.len();
     });
     eprintln!(
-        "BENCH resample skull_low ({} vertices) → 65536 vertices: median {ms:.1} ms; refine (passes, edge length for 64K) → {n} vertices: median {ms_refine:.1} ms; VmHWM {} MiB (before {} MiB)",
+        "BENCH resample skull_low ({} vertices) → 65536 vertices: median {ms:.1} ms wall, mean CPU {cpu:.0} ms/run; refine (passes, edge length for 64K) → {n} vertices: median {ms_refine:.1} ms; VmHWM {} MiB (before {} MiB), loadavg {}",
         s.positions.len(),
         vm_hwm_kib() / 1024,
-        before / 1024
+        before / 1024,
+        load_average()
     );
 }

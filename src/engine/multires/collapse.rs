@@ -23,8 +23,8 @@
 //!   `4√3·area / (l₀² + l₁² + l₂²)`: 1 for an equilateral triangle, 0 for a degenerate one.
 //!
 //! Rejected edges are retried (up to [`RETRY_ROUNDS`] times) once other collapses have changed
-//! their neighbourhood. The order is a total order on (squared length, lower index, higher
-//! index), and the process is sequential, so the result is deterministic.
+//! their neighbourhood. Candidates are ordered by squared length, ties by the order they were
+//! queued; the process is sequential, so the result is deterministic.
 //!
 //! Written by hand: the collapse rules (midpoint placement, vertex tree) are MeshMatch's own; the
 //! general-purpose decimation crates place vertices by quadrics and keep no vertex tree.
@@ -61,9 +61,29 @@ pub(crate) struct Decimated {
     pub parent: Vec<u32>,
 }
 
-/// Heap entry: squared length bits (non-negative floats order like their bits), the two ends
-/// (low, high) and the versions of both ends when pushed.
-type Entry = Reverse<(u32, u32, u32, u32, u32)>;
+/// The candidate queue: a min-heap of `squared length bits << 32 | record index` (non-negative
+/// floats order like their bits; equal lengths go to the earlier push), with the records (low
+/// end, high end, and both ends' versions when pushed) beside it. Eight-byte heap entries keep
+/// the heap small and cache friendly.
+#[derive(Default)]
+struct Queue {
+    heap: BinaryHeap<Reverse<u64>>,
+    records: Vec<(u32, u32, u32, u32)>,
+}
+
+impl Queue {
+    fn push(&mut self, len2: f32, record: (u32, u32, u32, u32)) {
+        let key = ((len2.to_bits() as u64) << 32) | self.records.len() as u64;
+        self.records.push(record);
+        self.heap.push(Reverse(key));
+    }
+
+    fn pop(&mut self) -> Option<(u32, u32, u32, u32)> {
+        self.heap
+            .pop()
+            .map(|Reverse(k)| self.records[(k & 0xFFFF_FFFF) as usize])
+    }
+}
 
 struct Mesh {
     pos: Vec<[f64; 3]>,
@@ -204,16 +224,13 @@ impl Mesh {
         dot(d, d)
     }
 
-    fn push_edge(&self, heap: &mut BinaryHeap<Entry>, a: u32, b: u32) {
+    fn push_edge(&self, heap: &mut Queue, a: u32, b: u32) {
         let (lo, hi) = (a.min(b), a.max(b));
         let l2 = self.len2(lo, hi) as f32;
-        heap.push(Reverse((
-            l2.to_bits(),
-            lo,
-            hi,
-            self.version[lo as usize],
-            self.version[hi as usize],
-        )));
+        heap.push(
+            l2,
+            (lo, hi, self.version[lo as usize], self.version[hi as usize]),
+        );
     }
 
     /// Distinct neighbours of `v` (excluding `skip`) into `out`, sorted.
@@ -367,14 +384,7 @@ impl Mesh {
     }
 
     /// Collapses `b` into `a` at `p` (already checked) and pushes the changed edges.
-    fn collapse(
-        &mut self,
-        a: u32,
-        b: u32,
-        p: [f64; 3],
-        heap: &mut BinaryHeap<Entry>,
-        s: &mut Scratch,
-    ) {
+    fn collapse(&mut self, a: u32, b: u32, p: [f64; 3], heap: &mut Queue, s: &mut Scratch) {
         let (ai, bi) = (a as usize, b as usize);
         s.shared.clear();
         for &f in &self.vfaces[ai] {
@@ -429,7 +439,7 @@ pub(crate) fn decimate(
 ) -> Result<Decimated, Cancelled> {
     let mut m = Mesh::new(positions, faces);
     let mut live = positions.len();
-    let mut heap: BinaryHeap<Entry> = BinaryHeap::with_capacity(faces.len() * 2);
+    let mut heap = Queue::default();
     for face in faces {
         for k in 0..3 {
             // Each undirected edge once: a consistently wound interior edge appears as a → b in
@@ -446,7 +456,7 @@ pub(crate) fn decimate(
     let mut since_tick = 0u64;
     let mut round = 0;
     while live > target {
-        let Some(Reverse((_, a, b, va, vb))) = heap.pop() else {
+        let Some((a, b, va, vb)) = heap.pop() else {
             // Retry rejected edges whose surroundings may have changed.
             if rejected.is_empty() || round >= RETRY_ROUNDS {
                 break;
@@ -460,7 +470,7 @@ pub(crate) fn decimate(
                     m.push_edge(&mut heap, a, b);
                 }
             }
-            if heap.is_empty() {
+            if heap.heap.is_empty() {
                 break;
             }
             continue;

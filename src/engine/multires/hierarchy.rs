@@ -24,7 +24,7 @@ use super::vertex_tree::{build_tree, descendant_range, SplitMix64, TreeLevel};
 use super::FacePoint;
 use crate::engine::control::{Cancelled, Control};
 use crate::engine::mesh::Surface;
-use crate::engine::spatial::Bvh;
+use crate::engine::spatial::{closest_point_on_triangle, Bvh};
 
 /// Parameters of [`build_hierarchy`].
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -183,7 +183,7 @@ pub fn build_hierarchy(
             &stage,
         )?;
         let coarse = Surface::from_triangles(d.positions, d.faces);
-        let projection = project(fine, &coarse, control)?;
+        let projection = project(fine, &coarse, &d.parent, control)?;
         let reduced = coarse.positions.len() as f64 / n as f64;
         let last = levels.last_mut().expect("one level");
         last.parent = d.parent;
@@ -231,29 +231,64 @@ fn check_params(p: &HierarchyParams) -> Result<(), HierarchyError> {
 }
 
 /// Closest point on `coarse` of every vertex of `fine`, in parallel blocks (each block checks
-/// for cancellation).
+/// for cancellation). The distance to the faces around the vertex's parent bounds the BVH search
+/// (the result is the exact closest point all the same; ties go to the lowest face index).
 fn project(
     fine: &Surface,
     coarse: &Surface,
+    parent: &[u32],
     control: &Control,
 ) -> Result<Vec<FacePoint>, Cancelled> {
     let bvh = Bvh::build(&coarse.positions, &coarse.faces);
+    // Coarse vertex → faces (CSR).
+    let nc = coarse.positions.len();
+    let mut offsets = vec![0u32; nc + 1];
+    for f in &coarse.faces {
+        for &v in f {
+            offsets[v as usize + 1] += 1;
+        }
+    }
+    for v in 0..nc {
+        offsets[v + 1] += offsets[v];
+    }
+    let mut cursor = offsets.clone();
+    let mut vfaces = vec![0u32; offsets[nc] as usize];
+    for (fi, f) in coarse.faces.iter().enumerate() {
+        for &v in f {
+            vfaces[cursor[v as usize] as usize] = fi as u32;
+            cursor[v as usize] += 1;
+        }
+    }
+    let query = |v: usize, p: [f32; 3]| -> FacePoint {
+        let u = parent[v] as usize;
+        let mut bound = f32::INFINITY;
+        for &f in &vfaces[offsets[u] as usize..offsets[u + 1] as usize] {
+            let [a, b, c] = coarse.face_positions(f as usize);
+            let (q, _) = closest_point_on_triangle(p, a, b, c);
+            let d2 = (0..3).map(|k| (p[k] - q[k]) * (p[k] - q[k])).sum::<f32>();
+            bound = bound.min(d2);
+        }
+        let limit = bound.sqrt() * (1.0 + 1e-5) + f32::MIN_POSITIVE;
+        let hit = bvh
+            .closest_point(p, limit)
+            .or_else(|| bvh.closest_point(p, f32::INFINITY))
+            .expect("the coarse level has faces");
+        FacePoint {
+            face: hit.face,
+            bary: hit.bary,
+        }
+    };
+    const BLOCK: usize = 4096;
     let blocks: Vec<Result<Vec<FacePoint>, Cancelled>> = fine
         .positions
-        .par_chunks(4096)
-        .map(|chunk| {
+        .par_chunks(BLOCK)
+        .enumerate()
+        .map(|(b, chunk)| {
             control.check()?;
             Ok(chunk
                 .iter()
-                .map(|&p| {
-                    let hit = bvh
-                        .closest_point(p, f32::INFINITY)
-                        .expect("the coarse level has faces");
-                    FacePoint {
-                        face: hit.face,
-                        bary: hit.bary,
-                    }
-                })
+                .enumerate()
+                .map(|(i, &p)| query(b * BLOCK + i, p))
                 .collect())
         })
         .collect();
