@@ -451,6 +451,38 @@ fn open_grid_keeps_its_boundary_on_the_boundary() {
     }
 }
 
+/// Non-manifold input: a fin triangle on an edge of a sphere (an edge with three faces). The
+/// vertices of that edge are locked, so the fin and the non-manifold edge survive every level;
+/// the rest still halves and χ is kept.
+#[test]
+fn non_manifold_edge_is_kept_and_the_rest_decimates() {
+    let mut s = icosphere(4);
+    let [a, b, _] = s.faces[0];
+    let (pa, pb) = (s.positions[a as usize], s.positions[b as usize]);
+    let out = [
+        0.5 * (pa[0] + pb[0]) * 1.5,
+        0.5 * (pa[1] + pb[1]) * 1.5,
+        0.5 * (pa[2] + pb[2]) * 1.5,
+    ];
+    s.positions.push(out);
+    s.faces.push([a, b, s.positions.len() as u32 - 1]);
+    let chi = euler(&s);
+    let h = build_hierarchy(&s, &HierarchyParams::default(), &Control::new()).unwrap();
+    assert!(h.level_count() >= 4);
+    for l in 1..h.level_count() {
+        let (fine, coarse) = (&h.level(l - 1).surface, &h.level(l).surface);
+        let ratio = coarse.positions.len() as f64 / fine.positions.len() as f64;
+        assert!((0.4..=0.6).contains(&ratio), "level {l}: ratio {ratio}");
+        let topo = topology(coarse);
+        assert_eq!(topo.non_manifold_edges, 1, "level {l}");
+        assert_eq!(topo.euler_characteristic, chi, "level {l}");
+        assert!(
+            coarse.positions.contains(&out),
+            "level {l}: the fin tip moved"
+        );
+    }
+}
+
 /// Random descendants are uniform over the subtree at the requested level: every descendant is
 /// drawn, the draws pass a chi-square test at about 5 standard deviations, and the max/min
 /// frequency ratio stays under 1.5 with at least 400 expected draws per descendant. Draws are
