@@ -5,10 +5,21 @@
 //! vertices lie on the old edges, and each records its two parents so any per-vertex attribute
 //! can be interpolated (DESIGN.md: "refine edges until a requested sample count or texel size").
 //!
+//! Every vertex also records where it lies on the *input* mesh as a [`FacePoint`] (input face and
+//! barycentric weights), so a field computed on the refined mesh can be baked back onto the input
+//! surface (and its texture). A new vertex takes the input face of the first refined triangle
+//! (in triangle order) that contains its edge; its weights are the mean of its two parents'
+//! weights in that face (a parent recorded on a neighbouring input face lies on the shared edge or
+//! corner, and its non-zero weights are carried over to the matching corners). Input vertices
+//! record the lowest-numbered face that uses them, with weight 1 on their own corner.
+//!
 //! Used where a target has too few vertices to carry a per-vertex field (COLOR_0 on a target
 //! without UVs). Deterministic: new vertices are numbered in order of first appearance.
+//! [`super::resample`] splits longest-first to an exact vertex count instead of in passes.
 
 use std::collections::HashMap;
+
+use super::FacePoint;
 
 /// Parameters of [`refine`].
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -44,6 +55,11 @@ pub struct Refined {
     pub parents: Vec<[u32; 2]>,
     /// Number of input vertices.
     pub input_count: usize,
+    /// For every vertex (input and new): its point on the input mesh. Input vertices used by no
+    /// triangle get [`FacePoint::NONE`].
+    pub sources: Vec<FacePoint>,
+    /// For every refined triangle: the input triangle it lies in.
+    pub triangle_faces: Vec<u32>,
 }
 
 impl Refined {
@@ -68,6 +84,57 @@ fn dist2(a: [f32; 3], b: [f32; 3]) -> f32 {
     (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
 }
 
+/// The sources of the input vertices: the lowest-numbered face using each, weight 1 on its corner.
+pub(crate) fn input_sources(vertex_count: usize, triangles: &[[u32; 3]]) -> Vec<FacePoint> {
+    let mut out = vec![FacePoint::NONE; vertex_count];
+    for (f, t) in triangles.iter().enumerate().rev() {
+        for k in 0..3 {
+            let mut bary = [0.0; 3];
+            bary[k] = 1.0;
+            out[t[k] as usize] = FacePoint {
+                face: f as u32,
+                bary,
+            };
+        }
+    }
+    out
+}
+
+/// Weights of `src` (a point on an input face) with respect to input face `face`, where the point
+/// lies on `face` or on its boundary; `None` when a non-zero weight falls on a corner `face` lacks.
+pub(crate) fn weights_in(input: &[[u32; 3]], face: u32, src: FacePoint) -> Option<[f32; 3]> {
+    if src.face == face {
+        return Some(src.bary);
+    }
+    let from = input.get(src.face as usize)?;
+    let to = input[face as usize];
+    let mut out = [0.0f32; 3];
+    for k in 0..3 {
+        if src.bary[k] != 0.0 {
+            let j = to.iter().position(|&v| v == from[k])?;
+            out[j] += src.bary[k];
+        }
+    }
+    Some(out)
+}
+
+/// Source of the midpoint of `a` and `b`, both on (or on the boundary of) input face `face`.
+pub(crate) fn midpoint_source(
+    input: &[[u32; 3]],
+    face: u32,
+    sa: FacePoint,
+    sb: FacePoint,
+) -> FacePoint {
+    match (weights_in(input, face, sa), weights_in(input, face, sb)) {
+        (Some(wa), Some(wb)) => FacePoint {
+            face,
+            bary: std::array::from_fn(|k| 0.5 * (wa[k] + wb[k])),
+        },
+        // Unreachable for conforming input (both ends lie on the face); keep the nearer record.
+        _ => sa,
+    }
+}
+
 /// Splits edges longer than `params.max_edge_length` until none is, or a cap is reached.
 pub fn refine(positions: &[[f32; 3]], triangles: &[[u32; 3]], params: &RefineParams) -> Refined {
     let mut out = Refined {
@@ -75,6 +142,8 @@ pub fn refine(positions: &[[f32; 3]], triangles: &[[u32; 3]], params: &RefinePar
         triangles: triangles.to_vec(),
         parents: Vec::new(),
         input_count: positions.len(),
+        sources: input_sources(positions.len(), triangles),
+        triangle_faces: (0..triangles.len() as u32).collect(),
     };
     let limit2 = params.max_edge_length * params.max_edge_length;
     if limit2.is_nan() || limit2 <= 0.0 {
@@ -84,7 +153,8 @@ pub fn refine(positions: &[[f32; 3]], triangles: &[[u32; 3]], params: &RefinePar
         let mut midpoints: HashMap<(u32, u32), u32> = HashMap::new();
         let mut any = false;
         // Decide splits per edge; assign indices in order of first appearance.
-        for t in &out.triangles {
+        for (ti, t) in out.triangles.iter().enumerate() {
+            let origin = out.triangle_faces[ti];
             for k in 0..3 {
                 let (a, b) = (t[k], t[(k + 1) % 3]);
                 let key = (a.min(b), a.max(b));
@@ -101,6 +171,12 @@ pub fn refine(positions: &[[f32; 3]], triangles: &[[u32; 3]], params: &RefinePar
                     midpoints.insert(key, out.positions.len() as u32);
                     out.positions.push(m);
                     out.parents.push([key.0, key.1]);
+                    out.sources.push(midpoint_source(
+                        triangles,
+                        origin,
+                        out.sources[key.0 as usize],
+                        out.sources[key.1 as usize],
+                    ));
                     any = true;
                 }
             }
@@ -110,7 +186,8 @@ pub fn refine(positions: &[[f32; 3]], triangles: &[[u32; 3]], params: &RefinePar
         }
         let mid = |a: u32, b: u32| midpoints.get(&(a.min(b), a.max(b))).copied();
         let mut next = Vec::with_capacity(out.triangles.len() * 2);
-        for &[a, b, c] in &out.triangles {
+        let mut next_faces = Vec::with_capacity(out.triangles.len() * 2);
+        for (ti, &[a, b, c]) in out.triangles.iter().enumerate() {
             let (mab, mbc, mca) = (mid(a, b), mid(b, c), mid(c, a));
             match (mab, mbc, mca) {
                 (None, None, None) => next.push([a, b, c]),
@@ -126,8 +203,10 @@ pub fn refine(positions: &[[f32; 3]], triangles: &[[u32; 3]], params: &RefinePar
                 (None, Some(y), Some(z)) => split_two(&out.positions, [b, c, a], y, z, &mut next),
                 (Some(x), None, Some(z)) => split_two(&out.positions, [c, a, b], z, x, &mut next),
             }
+            next_faces.resize(next.len(), out.triangle_faces[ti]);
         }
         out.triangles = next;
+        out.triangle_faces = next_faces;
         if out.triangles.len() >= params.max_triangles {
             break;
         }

@@ -1,0 +1,125 @@
+//! The vertex tree of the hierarchy (MeshMatch, Chen et al. 2012, §4: "retaining the vertex
+//! tree of parent-child relationships to allow efficient traversal between multiresolution
+//! levels") and the random descendants its random search draws (§4.2, Figure 4).
+//!
+//! Layout: every level `l` keeps its vertices in *tree order*: the coarsest level in index order,
+//! and each finer level as the concatenation, over the coarser level's tree order, of each
+//! vertex's children (ascending index). Then the children of a vertex are a contiguous run of the
+//! finer level's tree order, and so are its descendants any number of levels down: the
+//! descendants `j` levels below a vertex are one slice, found by `j` offset lookups, and a uniform
+//! draw over that slice is a uniform draw over the subtree's leaves at that level (not the biased
+//! "random child at each step" walk).
+//!
+//! [`SplitMix64`] (Steele, Lea & Flood 2014) is the seeded generator: tiny, fast, and with a
+//! fixed output for a seed, so draws are reproducible. Written by hand to avoid a dependency.
+
+use std::ops::Range;
+
+/// SplitMix64: a small seeded pseudo-random generator (not cryptographic).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SplitMix64 {
+    state: u64,
+}
+
+impl SplitMix64 {
+    /// A generator with the given seed.
+    pub fn new(seed: u64) -> Self {
+        Self { state: seed }
+    }
+
+    /// The next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.state = self.state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// A uniform integer in `0..n` (Lemire's multiply-shift with rejection, so exactly uniform).
+    ///
+    /// # Panics
+    /// If `n == 0`.
+    pub fn below(&mut self, n: u64) -> u64 {
+        assert!(n > 0, "SplitMix64::below(0)");
+        let threshold = n.wrapping_neg() % n;
+        loop {
+            let m = (self.next_u64() as u128) * (n as u128);
+            if (m as u64) >= threshold {
+                return (m >> 64) as u64;
+            }
+        }
+    }
+
+    /// A uniform float in `[0, 1)` (24 random bits).
+    pub fn unit_f32(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
+/// Tree order of one level.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub(crate) struct TreeLevel {
+    /// Vertices of this level in tree order.
+    pub order: Vec<u32>,
+    /// Position of each vertex in `order`.
+    pub rank: Vec<u32>,
+    /// For levels above the finest: the children of `order[p]` are
+    /// `finer.order[child_offsets[p]..child_offsets[p + 1]]`. Empty on the finest level.
+    pub child_offsets: Vec<u32>,
+}
+
+/// Builds the tree order of every level from the parent arrays: `parents[l][v]` is the parent on
+/// level `l + 1` of vertex `v` of level `l`; `counts[l]` is the vertex count of level `l`.
+pub(crate) fn build_tree(parents: &[&[u32]], counts: &[usize]) -> Vec<TreeLevel> {
+    let levels = counts.len();
+    let mut out: Vec<TreeLevel> = vec![TreeLevel::default(); levels];
+    let top = levels - 1;
+    out[top].order = (0..counts[top] as u32).collect();
+    out[top].rank = out[top].order.clone();
+    for l in (0..top).rev() {
+        let parent = parents[l];
+        let coarse = &out[l + 1];
+        // Counting sort of the fine vertices by their parent's rank (stable: ascending index).
+        let nc = counts[l + 1];
+        let mut offsets = vec![0u32; nc + 1];
+        for &p in parent {
+            offsets[coarse.rank[p as usize] as usize + 1] += 1;
+        }
+        for k in 0..nc {
+            offsets[k + 1] += offsets[k];
+        }
+        let mut cursor = offsets.clone();
+        let mut order = vec![0u32; parent.len()];
+        for (v, &p) in parent.iter().enumerate() {
+            let c = &mut cursor[coarse.rank[p as usize] as usize];
+            order[*c as usize] = v as u32;
+            *c += 1;
+        }
+        let mut rank = vec![0u32; parent.len()];
+        for (i, &v) in order.iter().enumerate() {
+            rank[v as usize] = i as u32;
+        }
+        out[l + 1].child_offsets = offsets;
+        out[l].order = order;
+        out[l].rank = rank;
+    }
+    out
+}
+
+/// The range, in the tree order of level `level - j`, of the descendants of `vertex` (a vertex
+/// of `level`).
+pub(crate) fn descendant_range(
+    tree: &[TreeLevel],
+    level: usize,
+    vertex: u32,
+    j: usize,
+) -> Range<usize> {
+    let r = tree[level].rank[vertex as usize] as usize;
+    let mut range = r..r + 1;
+    for l in (level - j + 1..=level).rev() {
+        let off = &tree[l].child_offsets;
+        range = off[range.start] as usize..off[range.end] as usize;
+    }
+    range
+}
