@@ -54,6 +54,9 @@ pub enum StoreError {
     /// Database failure.
     #[error("database: {0}")]
     Database(String),
+    /// A list cursor that this store did not issue.
+    #[error("invalid cursor {0:?}")]
+    InvalidCursor(String),
 }
 
 /// Result of [`JobStore::create`].
