@@ -19,10 +19,13 @@
 //! in one transaction, so a `kill -9` at any point leaves either a processing job (re-run after
 //! restart by [`JobStore::recover`]) or a finished job whose files exist.
 //!
-//! Cancellation: [`Runner::cancel`] flips the job's Control; the engine checks it in every long
-//! loop, so the job stops within well under a second and is finished as `canceled`. On
-//! [`Runner::shutdown`] the jobs still running after the deadline are cancelled the same way but
-//! put back to `enqueued` instead (they run again after restart).
+//! Cancellation: [`Runner::cancel`] flips the job's Control and wakes the job's task, which
+//! finishes the job as `canceled` in the store at once (clients never wait on the engine). The
+//! engine stops at its next Control check (every long loop checks); until then the worker slot
+//! stays taken, so at most `workers` engine calls ever run. Results of an engine call that
+//! completes after the cancel are discarded. On [`Runner::shutdown`] the jobs still running
+//! after the deadline are cancelled the same way but put back to `enqueued` instead (they run
+//! again after restart).
 
 use std::cell::Cell;
 use std::collections::HashMap;
@@ -111,10 +114,14 @@ struct Running {
     client_cancel: AtomicBool,
     /// Stopped by shutdown: put back to enqueued.
     requeue: AtomicBool,
+    /// Wakes the job's task when a client cancels.
+    cancel_wake: Notify,
 }
 
-/// A test hook run on the engine thread right before the engine call.
-type EngineHook = Arc<dyn Fn(&JobRecord) + Send + Sync>;
+/// A test hook run on the engine thread right before the engine call (see
+/// [`Runner::set_engine_hook`]).
+#[doc(hidden)]
+pub type EngineHook = Arc<dyn Fn(&JobRecord) + Send + Sync>;
 
 /// How a job ended on the engine side.
 enum Outcome {
@@ -239,6 +246,7 @@ impl Runner {
         if let Some(r) = locked(&self.running).get(&id) {
             r.client_cancel.store(true, Ordering::SeqCst);
             r.control.cancel();
+            r.cancel_wake.notify_one();
             return true;
         }
         let mut early = locked(&self.early_cancels);
@@ -278,7 +286,7 @@ impl Runner {
     /// Test hook: `hook` runs on the engine thread, inside the job's panic guard, right
     /// before the engine call of every job. Not part of the API.
     #[doc(hidden)]
-    pub fn set_engine_hook(&self, hook: Option<Arc<dyn Fn(&JobRecord) + Send + Sync>>) {
+    pub fn set_engine_hook(&self, hook: Option<EngineHook>) {
         *locked(&self.hook) = hook;
     }
 
@@ -314,10 +322,19 @@ impl Runner {
             tracing::error!("jobs did not stop within the grace period; re-enqueueing anyway");
         }
         let jobs = Arc::clone(&self.jobs);
-        match tokio::task::spawn_blocking(move || jobs.recover(u32::MAX, Utc::now())).await {
-            Ok(Ok(recovery)) => {
-                for id in recovery.requeued {
-                    self.emit(id, JobStatus::Enqueued, JobProgress::default(), 0);
+        let requeue = move || -> Result<Vec<JobRecord>, StoreError> {
+            let recovery = jobs.recover(u32::MAX, Utc::now())?;
+            let mut records = Vec::with_capacity(recovery.requeued.len());
+            for id in recovery.requeued {
+                records.extend(jobs.get(id)?);
+            }
+            Ok(records)
+        };
+        match tokio::task::spawn_blocking(requeue).await {
+            Ok(Ok(records)) => {
+                for j in records {
+                    tracing::info!(id = %j.id, "job re-enqueued by shutdown");
+                    self.emit(j.id, j.status, j.progress, j.revision);
                 }
             }
             Ok(Err(e)) => tracing::error!(error = %e, "re-enqueueing jobs at shutdown failed"),
@@ -370,12 +387,14 @@ impl Runner {
             control: Control::new(),
             client_cancel: AtomicBool::new(false),
             requeue: AtomicBool::new(false),
+            cancel_wake: Notify::new(),
         });
         self.busy.send_modify(|n| *n += 1);
         locked(&self.running).insert(job.id, Arc::clone(&running));
         if locked(&self.early_cancels).remove(&job.id).is_some() {
             running.client_cancel.store(true, Ordering::SeqCst);
             running.control.cancel();
+            running.cancel_wake.notify_one();
         }
         let me = Arc::clone(self);
         tokio::spawn(async move {
@@ -420,12 +439,19 @@ impl Runner {
         let mut last_sent = job.progress.clone();
         let mut last_stored = job.progress.clone();
         let mut last_store_at: Option<Instant> = None;
+        let mut canceled = false;
         let outcome = loop {
             tokio::select! {
                 r = &mut rx => break r.unwrap_or_else(|_| {
                     Outcome::Failed(internal_problem("the engine worker was lost".into()))
                 }),
-                _ = ticker.tick() => {
+                _ = running.cancel_wake.notified(), if !canceled => {
+                    // The client sees `canceled` at once; the worker slot stays taken until the
+                    // engine reaches its next cancel check and returns.
+                    canceled = true;
+                    self.store_finish(id, Finish::Canceled).await;
+                }
+                _ = ticker.tick(), if !canceled => {
                     let p = to_job_progress(control.progress());
                     if p == last_sent {
                         continue;
@@ -450,6 +476,15 @@ impl Runner {
             }
         };
 
+        if canceled {
+            let how = match &outcome {
+                Outcome::Succeeded { .. } => "succeeded",
+                Outcome::Failed(_) => "failed",
+                Outcome::Canceled => "canceled",
+            };
+            tracing::info!(%id, engine = how, "canceled job's engine call returned");
+            return;
+        }
         let finish = match outcome {
             Outcome::Succeeded {
                 artifacts,
@@ -474,6 +509,11 @@ impl Runner {
                 Finish::Canceled
             }
         };
+        self.store_finish(id, finish).await;
+    }
+
+    /// Moves the job to its terminal state in the store and announces it.
+    async fn store_finish(&self, id: Uuid, finish: Finish) {
         let jobs = Arc::clone(&self.jobs);
         match tokio::task::spawn_blocking(move || jobs.finish(id, finish, Utc::now())).await {
             Ok(Ok(rec)) => {
@@ -553,6 +593,10 @@ fn execute(ctx: &EngineCtx, job: &JobRecord, control: &Control) -> Outcome {
         Err(e) => return Outcome::Failed(transfer_problem(&e)),
     };
     drop((source, target));
+    if control.is_cancelled() {
+        // Canceled after the engine's last check: the client already sees `canceled`.
+        return Outcome::Canceled;
+    }
     let (name, media_type) = match out.format {
         OutputFormat::Glb => ("result.glb", "model/gltf-binary"),
         OutputFormat::Gltf => ("result.gltf", "model/gltf+json"),
