@@ -118,7 +118,7 @@ fn pagination_covers_every_job_once_newest_first_with_filters() {
             .unwrap();
     }
     let mut expect: Vec<&JobRecord> = all.iter().collect();
-    expect.sort_by(|a, b| (b.created_at, b.id).cmp(&(a.created_at, a.id)));
+    expect.sort_by_key(|j| std::cmp::Reverse((j.created_at, j.id)));
 
     let collect = |filter: ListFilter| -> Vec<JobRecord> {
         let mut out = Vec::new();
