@@ -55,6 +55,8 @@ const DISPATCH_TICK: Duration = Duration::from_secs(1);
 const EARLY_CANCEL_TTL: Duration = Duration::from_secs(30);
 /// After the shutdown deadline, how long cancelled jobs get to stop.
 const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
+/// Tries of storing a job's terminal state.
+const FINISH_ATTEMPTS: u32 = 4;
 /// Capacity of the event channel (slow subscribers miss events and see `Lagged`).
 const EVENT_CAPACITY: usize = 1024;
 
@@ -512,16 +514,32 @@ impl Runner {
         self.store_finish(id, finish).await;
     }
 
-    /// Moves the job to its terminal state in the store and announces it.
+    /// Moves the job to its terminal state in the store and announces it. Transient store
+    /// failures (a locked or full disk) are retried a few times with backoff; a conflict (the
+    /// job is already terminal) or a missing job is not. A job whose finish could not be
+    /// stored stays `processing` and is re-run by the next start's recovery.
     async fn store_finish(&self, id: Uuid, finish: Finish) {
-        let jobs = Arc::clone(&self.jobs);
-        match tokio::task::spawn_blocking(move || jobs.finish(id, finish, Utc::now())).await {
-            Ok(Ok(rec)) => {
-                tracing::info!(%id, status = rec.status.as_str(), "job finished");
-                self.emit(id, rec.status, rec.progress.clone(), rec.revision);
+        let mut delay = Duration::from_millis(100);
+        for attempt in 1..=FINISH_ATTEMPTS {
+            let jobs = Arc::clone(&self.jobs);
+            let f = finish.clone();
+            match tokio::task::spawn_blocking(move || jobs.finish(id, f, Utc::now())).await {
+                Ok(Ok(rec)) => {
+                    tracing::info!(%id, status = rec.status.as_str(), "job finished");
+                    self.emit(id, rec.status, rec.progress.clone(), rec.revision);
+                    return;
+                }
+                Ok(Err(e @ (StoreError::Conflict { .. } | StoreError::NotFound(_)))) => {
+                    tracing::warn!(%id, error = %e, "job not finished");
+                    return;
+                }
+                Ok(Err(e)) => {
+                    tracing::error!(%id, attempt, error = %e, "finishing the job failed")
+                }
+                Err(e) => tracing::error!(%id, attempt, error = %e, "finishing the job panicked"),
             }
-            Ok(Err(e)) => tracing::error!(%id, error = %e, "finishing the job failed"),
-            Err(e) => tracing::error!(%id, error = %e, "finishing the job panicked"),
+            tokio::time::sleep(delay).await;
+            delay *= 4;
         }
     }
 }
