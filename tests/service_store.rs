@@ -1,6 +1,7 @@
 //! The embedded stores: `SqliteJobStore` (state machine, pagination, atomic claims, recovery,
 //! idempotency, retention, durability across reopen) and `FsBlobStore` (atomic writes, ranges,
 //! key validation, prefix deletion).
+#![cfg(feature = "service")]
 
 use std::collections::HashSet;
 use std::path::PathBuf;

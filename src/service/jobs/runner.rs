@@ -257,9 +257,17 @@ impl Runner {
         false
     }
 
-    /// Live progress of a job running here.
+    /// Live progress of a job running here (`None` once a client canceled it: the stored
+    /// record is then the truth).
     pub fn progress(&self, id: Uuid) -> Option<JobProgress> {
-        let control = locked(&self.running).get(&id)?.control.clone();
+        let control = {
+            let running = locked(&self.running);
+            let r = running.get(&id)?;
+            if r.client_cancel.load(Ordering::SeqCst) {
+                return None;
+            }
+            r.control.clone()
+        };
         Some(to_job_progress(control.progress()))
     }
 
