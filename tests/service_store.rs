@@ -406,7 +406,7 @@ fn idempotency_key_same_hash_returns_job_different_hash_is_refused() {
     replay.request_hash = "hash-a".into();
     assert_eq!(
         store.create(&replay).unwrap(),
-        CreateOutcome::Existing(a.clone())
+        CreateOutcome::Existing(Box::new(a.clone()))
     );
     assert_eq!(
         store.get(replay.id).unwrap(),

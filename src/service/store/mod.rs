@@ -60,8 +60,6 @@ pub enum StoreError {
 }
 
 /// Result of [`JobStore::create`].
-// Returned once per submission; boxing the record would only complicate every caller.
-#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq)]
 pub enum CreateOutcome {
     /// The job was inserted.

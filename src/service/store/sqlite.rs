@@ -312,7 +312,7 @@ impl JobStore for SqliteJobStore {
                         });
                     }
                     if let Some(rec) = load_record(tx, existing)? {
-                        return Ok(CreateOutcome::Existing(rec));
+                        return Ok(CreateOutcome::Existing(Box::new(rec)));
                     }
                     // The job was deleted by its owner: the key is free again.
                     tx.execute("DELETE FROM idempotency_keys WHERE key = ?1", [key])?;
