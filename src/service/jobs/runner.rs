@@ -3,8 +3,9 @@
 //! [`BlobStore`], runs [`crate::engine::pipeline::transfer`] on a dedicated rayon pool under a
 //! [`Control`], publishes progress, and stores the results.
 //!
-//! Threads: the engine never runs on a tokio thread. Each job is `pool.spawn`ed onto the rayon
-//! pool (threads `retex-engine-N`) and awaited through a `tokio::sync::oneshot`, inside
+//! Threads: the engine never runs on a tokio thread. Each job is `spawn`ed onto the rayon pool
+//! of a free worker slot (threads `retex-engine-<slot>-<i>`; one pool per slot, so a thread of
+//! one job never steals another job's engine call) and awaited through a `tokio::sync::oneshot`, inside
 //! `catch_unwind`: a panic fails that job with its message and the process lives on. Store calls
 //! from async code go through `spawn_blocking`.
 //!
@@ -141,7 +142,9 @@ pub struct Runner {
     config: RunnerConfig,
     jobs: Arc<dyn JobStore>,
     blobs: Arc<dyn BlobStore>,
-    pool: Arc<rayon::ThreadPool>,
+    /// One rayon pool per worker slot: a thread of one job that waits inside a parallel loop
+    /// would otherwise steal another job's whole engine call and block its own job behind it.
+    pools: Vec<(Arc<rayon::ThreadPool>, Arc<AtomicBool>)>,
     running: Mutex<HashMap<Uuid, Arc<Running>>>,
     early_cancels: Mutex<HashMap<Uuid, Instant>>,
     wake: Notify,
@@ -183,7 +186,7 @@ fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
 }
 
 impl Runner {
-    /// Builds the dedicated rayon pool (threads named `retex-engine-N`), runs
+    /// Builds one rayon pool per worker slot (threads `retex-engine-<slot>-<i>`), runs
     /// [`JobStore::recover`], and spawns the dispatcher task that claims jobs while fewer than
     /// `workers` run (woken by [`Runner::notify`] and by a periodic tick).
     ///
@@ -201,12 +204,17 @@ impl Runner {
             ))
         })?;
         let workers = config.workers.max(1);
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(workers)
-            .thread_name(|i| format!("retex-engine-{i}"))
-            .start_handler(|_| ENGINE_THREAD.with(|c| c.set(true)))
-            .build()
-            .map_err(|e| StoreError::Io(std::io::Error::other(format!("engine pool: {e}"))))?;
+        let threads = std::thread::available_parallelism().map_or(2, |n| n.get());
+        let mut pools = Vec::with_capacity(workers);
+        for slot in 0..workers {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .thread_name(move |i| format!("retex-engine-{slot}-{i}"))
+                .start_handler(|_| ENGINE_THREAD.with(|c| c.set(true)))
+                .build()
+                .map_err(|e| StoreError::Io(std::io::Error::other(format!("engine pool: {e}"))))?;
+            pools.push((Arc::new(pool), Arc::new(AtomicBool::new(false))));
+        }
         let recovery = jobs.recover(config.max_attempts, Utc::now())?;
         if !recovery.requeued.is_empty() || !recovery.failed.is_empty() {
             tracing::warn!(
@@ -219,7 +227,7 @@ impl Runner {
             config: RunnerConfig { workers, ..config },
             jobs,
             blobs,
-            pool: Arc::new(pool),
+            pools,
             running: Mutex::new(HashMap::new()),
             early_cancels: Mutex::new(HashMap::new()),
             wake: Notify::new(),
@@ -435,11 +443,24 @@ impl Runner {
         };
         let engine_job = job.clone();
         let engine_control = control.clone();
-        self.pool.spawn(move || {
+        // A slot whose previous engine call has ended; there is one, because at most `workers`
+        // jobs are busy and a job stays busy until its engine call returns.
+        let (pool, in_use) = self
+            .pools
+            .iter()
+            .find(|(_, in_use)| {
+                in_use
+                    .compare_exchange(false, true, Ordering::SeqCst, Ordering::SeqCst)
+                    .is_ok()
+            })
+            .cloned()
+            .unwrap_or_else(|| self.pools[0].clone());
+        pool.spawn(move || {
             let out = catch_unwind(AssertUnwindSafe(|| {
                 execute(&ctx, &engine_job, &engine_control)
             }))
             .unwrap_or_else(|p| Outcome::Failed(panic_problem(&panic_message(p.as_ref()))));
+            in_use.store(false, Ordering::SeqCst);
             let _ = tx.send(out);
         });
         drop(_enter);
