@@ -1,3 +1,8 @@
 //! Differential geometry on Surfaces: Laplacian and mass, geodesics (heat method, bounded
 //! walks), curvature, and ray-cast shape features (solid angle, occlusion, shape diameter).
 //! Each operator is a plain function with a `Params` struct.
+
+pub mod curvature;
+pub mod heat;
+pub mod laplacian;
+pub mod walk;
