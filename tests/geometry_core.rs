@@ -1,6 +1,8 @@
 //! Analytic and invariant tests of the geometry core: cotan Laplacian and mass, sparse Cholesky
 //! with reused symbolic analysis, heat-method geodesics, bounded walks, curvature.
 
+mod common_geometry;
+
 use std::collections::BTreeMap;
 
 use retex::engine::control::Control;
@@ -444,6 +446,49 @@ fn curvature_of_spheres() {
 }
 
 #[test]
+fn curvature_of_an_ellipsoid_matches_the_analytic_values() {
+    // x²/a² + y²/b² + z²/c² = 1: with h² = x²/a⁴ + y²/b⁴ + z²/c⁴,
+    // K = 1 / (a²b²c² h⁴) and H = (a² + b² + c² − |x|²) / (2 a²b²c² h³).
+    let (a, b, c) = (1.0f64, 0.7f64, 0.5f64);
+    let mut s = icosphere(1.0, 40);
+    for p in &mut s.positions {
+        *p = [
+            (p[0] as f64 * a) as f32,
+            (p[1] as f64 * b) as f32,
+            (p[2] as f64 * c) as f32,
+        ];
+    }
+    let curv = principal_curvatures(&s, &CurvatureParams::default()).unwrap();
+    let (mut sum_h, mut sum_k, mut worst_h, mut worst_k) = (0.0, 0.0, 0.0f64, 0.0f64);
+    let abc2 = (a * b * c).powi(2);
+    for (v, p) in s.positions.iter().enumerate() {
+        let (x, y, z) = (p[0] as f64, p[1] as f64, p[2] as f64);
+        let h = (x * x / a.powi(4) + y * y / b.powi(4) + z * z / c.powi(4)).sqrt();
+        let k_true = 1.0 / (abc2 * h.powi(4));
+        let h_true = (a * a + b * b + c * c - x * x - y * y - z * z) / (2.0 * abc2 * h.powi(3));
+        let eh = (curv.mean[v] / h_true - 1.0).abs();
+        let ek = (curv.gaussian[v] / k_true - 1.0).abs();
+        sum_h += eh;
+        sum_k += ek;
+        worst_h = worst_h.max(eh);
+        worst_k = worst_k.max(ek);
+    }
+    let n = s.vertex_count() as f64;
+    eprintln!(
+        "ellipsoid: H mean {:.4} worst {worst_h:.4}; K mean {:.4} worst {worst_k:.4}",
+        sum_h / n,
+        sum_k / n
+    );
+    assert!(
+        sum_h / n < 0.01 && sum_k / n < 0.02,
+        "{} {}",
+        sum_h / n,
+        sum_k / n
+    );
+    assert!(worst_h < 0.05 && worst_k < 0.1, "{worst_h} {worst_k}");
+}
+
+#[test]
 fn curvature_of_a_cylinder() {
     let rho = 0.5;
     let s = cylinder(rho, 2.0, 64, 40);
@@ -487,4 +532,77 @@ fn params_deserialize_from_empty_json_to_defaults() {
     assert_eq!(w.metric, WalkMetric::FastMarching);
     let _: CurvatureParams = serde_json::from_str("{}").unwrap();
     assert!(serde_json::from_str::<HeatParams>(r#"{"bogus": 1}"#).is_err());
+}
+
+/// Exports L, both mass matrices and curvatures of a few shared assets for
+/// `scripts/crosscheck_libigl.py` (which runs this test and compares with libigl). Writes into
+/// `$RETEX_CROSSCHECK_DIR` (default `target/crosscheck_libigl`).
+#[test]
+#[ignore = "run by scripts/crosscheck_libigl.py"]
+fn export_for_libigl_crosscheck() {
+    let out = std::env::var("RETEX_CROSSCHECK_DIR")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|_| {
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/crosscheck_libigl")
+        });
+    let assets = common_geometry::shared_assets_dir();
+    let meshes = [
+        ("icosphere", icosphere(1.0, 12)),
+        (
+            "spot",
+            common_geometry::read_obj(&assets.join("src_spot_keenan/spot_triangulated.obj")),
+        ),
+        (
+            "koala_low",
+            common_geometry::read_obj(
+                &assets.join("perf_koala_odedstein/koala_low_resolution.obj"),
+            ),
+        ),
+    ];
+    for (name, s) in meshes {
+        let dir = out.join(name);
+        std::fs::create_dir_all(&dir).unwrap();
+        let (n, m) = (s.vertex_count(), s.face_count());
+        let v: Vec<f64> = s.positions.iter().flatten().map(|&c| c as f64).collect();
+        let f: Vec<i64> = s.faces.iter().flatten().map(|&i| i as i64).collect();
+        common_geometry::write_f64(&dir, "V", &[n, 3], &v);
+        common_geometry::write_i64(&dir, "F", &[m, 3], &f);
+        let lap = cotan_laplacian(&s, &LaplacianParams::default()).unwrap();
+        let t = lap.stiffness.triplets();
+        common_geometry::write_i64(
+            &dir,
+            "L_rows",
+            &[t.len()],
+            &t.iter().map(|e| e.0 as i64).collect::<Vec<_>>(),
+        );
+        common_geometry::write_i64(
+            &dir,
+            "L_cols",
+            &[t.len()],
+            &t.iter().map(|e| e.1 as i64).collect::<Vec<_>>(),
+        );
+        common_geometry::write_f64(
+            &dir,
+            "L_vals",
+            &[t.len()],
+            &t.iter().map(|e| e.2).collect::<Vec<_>>(),
+        );
+        for (kind, file) in [
+            (MassKind::MixedVoronoi, "M_voronoi"),
+            (MassKind::Barycentric, "M_barycentric"),
+        ] {
+            common_geometry::write_f64(&dir, file, &[n], &mass_matrix(&s, kind).unwrap());
+        }
+        let c = principal_curvatures(&s, &CurvatureParams::default()).unwrap();
+        common_geometry::write_f64(&dir, "k_max", &[n], &c.k_max);
+        common_geometry::write_f64(&dir, "k_min", &[n], &c.k_min);
+        let flat = |d: &[[f64; 3]]| d.iter().flatten().copied().collect::<Vec<_>>();
+        common_geometry::write_f64(&dir, "dir_max", &[n, 3], &flat(&c.dir_max));
+        common_geometry::write_f64(&dir, "dir_min", &[n, 3], &flat(&c.dir_min));
+        common_geometry::write_f64(&dir, "normals", &[n, 3], &flat(&c.normals));
+        eprintln!(
+            "exported {name}: {n} vertices, {m} faces -> {}",
+            dir.display()
+        );
+    }
 }

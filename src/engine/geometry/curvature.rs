@@ -17,8 +17,8 @@
 //! **Signs.** `II` is the derivative of the unit normal (`dN`), so with outward normals (faces
 //! counter-clockwise seen from outside) a sphere of radius ρ has `k_max = k_min = H = 1/ρ` and
 //! `K = 1/ρ²`; a convex region has positive mean curvature. Units: 1/world units (`K`:
-//! 1/world units²). libigl's `principal_curvature` has the opposite sign for outward normals
-//! (see `scripts/crosscheck_libigl.py`).
+//! 1/world units²). This is also the sign of libigl's `principal_curvature` (cross-checked in
+//! `scripts/crosscheck_libigl.py`).
 //!
 //! Vertices without a non-degenerate face get zero curvature and zero directions. Boundary
 //! vertices average only their existing faces (one-sided estimates).

@@ -12,8 +12,12 @@
 //!    `(∇·X)_i = ½ Σ_faces [cot θ₁ (e₁·X) + cot θ₂ (e₂·X)]`. Solved as `(−L + εM) φ = −∇·X`
 //!    with a tiny shift `ε` (see [`HeatParams::poisson_shift`]) that makes the system positive
 //!    definite; the constant it fixes is removed in step 4.
-//! 4. Per connected component, `φ` is shifted so that its smallest value at that component's
-//!    sources (interpolated at points inside faces) is 0; values below 0 are clamped to 0.
+//! 4. `φ` is determined up to a constant per connected component. Each source `s` in face
+//!    `(i, j, k)` with barycentric weights `b` estimates it as `Σ b_c (φ_c − |x_c − s|)`: the
+//!    value of `φ` at the corners minus their straight-line distance to the source inside the
+//!    face (for a vertex source simply `φ` at that vertex). This avoids the bias of
+//!    interpolating the cone-shaped `φ` linearly at a point inside a face. The component's
+//!    sources' estimates are averaged and subtracted; values below 0 are clamped to 0.
 //!    Vertices of components without a source get `f64::INFINITY`.
 //!
 //! Boundary: [`HeatBoundary::Averaged`] (default) averages the heat of the Neumann problem and of
@@ -405,17 +409,24 @@ impl HeatGeodesics {
             .map(|&c| c as usize + 1)
             .max()
             .unwrap_or(0);
-        let mut offset = vec![f64::INFINITY; ncomp];
+        let mut sum = vec![0.0; ncomp];
+        let mut count = vec![0usize; ncomp];
         for (face, bary) in points {
             let f = self.faces[*face];
-            let value: f64 = (0..3).map(|k| bary[k] * phi[f[k] as usize]).sum();
+            let p = f.map(|v| self.positions[v as usize]);
+            let src: [f64; 3] =
+                std::array::from_fn(|k| bary[0] * p[0][k] + bary[1] * p[1][k] + bary[2] * p[2][k]);
+            let value: f64 = (0..3)
+                .map(|k| bary[k] * (phi[f[k] as usize] - norm(sub(p[k], src))))
+                .sum();
             let c = self.vertex_component[f[0] as usize] as usize;
-            offset[c] = offset[c].min(value);
+            sum[c] += value;
+            count[c] += 1;
         }
         for (v, d) in phi.iter_mut().enumerate() {
-            let c = self.vertex_component[v];
-            *d = match offset.get(c as usize) {
-                Some(o) if o.is_finite() => (*d - o).max(0.0),
+            let c = self.vertex_component[v] as usize;
+            *d = match count.get(c) {
+                Some(&k) if k > 0 => (*d - sum[c] / k as f64).max(0.0),
                 _ => f64::INFINITY,
             };
         }
