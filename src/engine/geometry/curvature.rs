@@ -167,7 +167,7 @@ fn solve3(m: [[f64; 3]; 3], r: [f64; 3]) -> Option<[f64; 3]> {
     };
     let d = det(m);
     let scale = m.iter().flatten().map(|v| v.abs()).fold(0.0, f64::max);
-    if !(d.abs() > 1e-14 * scale * scale * scale) {
+    if d.is_nan() || d.abs() <= 1e-14 * scale * scale * scale {
         return None;
     }
     Some(std::array::from_fn(|c| {
@@ -227,7 +227,7 @@ pub fn principal_curvatures(
                 g += w * form(v1, v2, v1, v2);
                 wsum += w;
             }
-            if !(wsum > 0.0) {
+            if wsum.is_nan() || wsum <= 0.0 {
                 return (0.0, 0.0, [0.0; 3], [0.0; 3]);
             }
             let (e, f, g) = (e / wsum, f / wsum, g / wsum);

@@ -139,21 +139,24 @@ impl HeatGeodesics {
         params: &HeatParams,
         control: &Control,
     ) -> Result<Self, GeometryError> {
-        if !(params.time_factor > 0.0 && params.time_factor <= 1e4) {
+        if params.time_factor.is_nan() || params.time_factor <= 0.0 || params.time_factor > 1e4 {
             return Err(GeometryError::InvalidParam {
                 name: "time_factor",
                 value: params.time_factor,
                 range: "(0, 1e4]",
             });
         }
-        if !(params.poisson_shift > 0.0 && params.poisson_shift <= 1e-2) {
+        if params.poisson_shift.is_nan()
+            || params.poisson_shift <= 0.0
+            || params.poisson_shift > 1e-2
+        {
             return Err(GeometryError::InvalidParam {
                 name: "poisson_shift",
                 value: params.poisson_shift,
                 range: "(0, 1e-2]",
             });
         }
-        let stage = control.stage("heat geodesics: operators", 0)?;
+        control.stage("heat geodesics: operators", 0)?;
         let lap = cotan_laplacian(
             surface,
             &LaplacianParams {
@@ -162,7 +165,7 @@ impl HeatGeodesics {
             },
         )?;
         let total_area: f64 = lap.mass.iter().sum();
-        if !(total_area > 0.0) {
+        if total_area.is_nan() || total_area <= 0.0 {
             return Err(GeometryError::Degenerate("zero total area".into()));
         }
         let n = surface.positions.len();
@@ -192,7 +195,6 @@ impl HeatGeodesics {
                 vertex_component[v as usize] = topo.face_component[f];
             }
         }
-        drop(stage);
 
         control.stage("heat geodesics: factorization", 0)?;
         let symbolic = SymbolicCholesky::new(pattern.clone())?;
@@ -228,7 +230,7 @@ impl HeatGeodesics {
                 let p = surface.faces[f].map(|v| positions[v as usize]);
                 let nrm = cross(sub(p[1], p[0]), sub(p[2], p[0]));
                 let twice_area = norm(nrm);
-                if terms[f].cot == [0.0; 3] || !(twice_area > 0.0) {
+                if terms[f].cot == [0.0; 3] || twice_area.is_nan() || twice_area <= 0.0 {
                     return [[0.0; 3]; 3];
                 }
                 let unit = nrm.map(|c| c / twice_area);
@@ -349,7 +351,10 @@ impl HeatGeodesics {
                         return Err(bad(index, format!("face {face} out of range")));
                     }
                     let sum: f64 = bary.iter().sum();
-                    if !bary.iter().all(|b| b.is_finite() && *b >= -1e-9) || !(sum > 0.0) {
+                    if !bary.iter().all(|b| b.is_finite() && *b >= -1e-9)
+                        || sum.is_nan()
+                        || sum <= 0.0
+                    {
                         return Err(bad(index, format!("invalid barycentric {bary:?}")));
                     }
                     Ok((face as usize, bary.map(|b| b.max(0.0) / sum)))
@@ -378,7 +383,7 @@ impl HeatGeodesics {
                     }
                 }
                 let len = norm(gu);
-                if !(len > 0.0) || !len.is_finite() {
+                if !len.is_finite() || len <= 0.0 {
                     return [0.0; 3];
                 }
                 let x = gu.map(|c| -c / len);

@@ -167,7 +167,7 @@ pub(crate) fn is_degenerate(surface: &Surface, face: usize) -> bool {
     let e = [sub(p[1], p[0]), sub(p[2], p[1]), sub(p[0], p[2])];
     let longest2 = e.iter().map(|x| dot(*x, *x)).fold(0.0, f64::max);
     let twice_area = norm(cross(e[0], sub(p[2], p[0])));
-    !(twice_area > f64::EPSILON * longest2)
+    twice_area.is_nan() || twice_area <= f64::EPSILON * longest2
 }
 
 /// Cotangents and corner areas of one face.
@@ -289,7 +289,7 @@ pub fn cotan_laplacian(
     params: &LaplacianParams,
 ) -> Result<Laplacian, GeometryError> {
     validate_surface(surface)?;
-    if !(params.max_cotangent >= 1.0) {
+    if params.max_cotangent.is_nan() || params.max_cotangent < 1.0 {
         return Err(GeometryError::InvalidParam {
             name: "max_cotangent",
             value: params.max_cotangent,

@@ -2,6 +2,7 @@
 //! walks), curvature, and ray-cast shape features (solid angle, occlusion, shape diameter).
 //! Each operator is a plain function with a `Params` struct.
 
+pub mod bench;
 pub mod curvature;
 pub mod heat;
 pub mod laplacian;

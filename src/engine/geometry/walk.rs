@@ -177,7 +177,7 @@ impl<'g> Walker<'g> {
                 reason: format!("vertex {source} out of range"),
             });
         }
-        if !(params.radius >= 0.0) {
+        if params.radius.is_nan() || params.radius < 0.0 {
             return Err(GeometryError::InvalidParam {
                 name: "radius",
                 value: params.radius,
@@ -250,19 +250,19 @@ impl<'g> Walker<'g> {
         let (da, db) = (self.dist[a as usize], self.dist[b as usize]);
         let ab = sub(pb, pa);
         let len = norm(ab);
-        if !(len > 0.0) {
+        if len.is_nan() || len <= 0.0 {
             return None;
         }
         let ac = sub(pc, pa);
         // c in the 2D frame with a at the origin and b on the +x axis.
         let cx = dot(ac, ab) / len;
         let cy = (dot(ac, ac) - cx * cx).max(0.0).sqrt();
-        if !(cy > 0.0) {
+        if cy.is_nan() || cy <= 0.0 {
             return None;
         }
         let sx = (da * da - db * db + len * len) / (2.0 * len);
         let sy2 = da * da - sx * sx;
-        if !(sy2 >= 0.0) {
+        if sy2.is_nan() || sy2 < 0.0 {
             return None;
         }
         let sy = -sy2.sqrt();
