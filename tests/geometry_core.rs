@@ -3,6 +3,8 @@
 
 mod common_geometry;
 
+use common_geometry::{great_circle, jittered_sphere, mean_relative_error, random_vec};
+
 use std::collections::BTreeMap;
 
 use retex::engine::control::Control;
@@ -12,36 +14,9 @@ use retex::engine::geometry::laplacian::{
     cotan_laplacian, mass_matrix, GeometryError, LaplacianParams, MassKind,
 };
 use retex::engine::geometry::walk::{WalkGraph, WalkMetric, WalkParams, Walker};
-use retex::engine::linalg::{LinalgError, SymbolicCholesky};
+use retex::engine::linalg::{LinalgError, SparsityPattern, SymbolicCholesky, SymmetricMatrix};
 use retex::engine::mesh::primitives::{cylinder, grid, icosphere, jitter, uv_sphere};
 use retex::engine::mesh::{topology, Surface};
-
-/// Deterministic values in [-1, 1).
-fn random_vec(n: usize, seed: u64) -> Vec<f64> {
-    let mut s = seed;
-    (0..n)
-        .map(|_| {
-            s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = s;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            z ^= z >> 31;
-            (z >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        })
-        .collect()
-}
-
-/// A sphere of radius `r` whose vertices were jittered and pushed back onto the sphere:
-/// irregular valences kept, triangle shapes irregular (some obtuse).
-fn jittered_sphere(r: f64, frequency: usize, amount: f64) -> Surface {
-    let mut s = icosphere(r, frequency);
-    jitter(&mut s, amount, [true; 3], 7);
-    for p in &mut s.positions {
-        let l = p.iter().map(|c| (*c as f64).powi(2)).sum::<f64>().sqrt();
-        *p = p.map(|c| (c as f64 * r / l) as f32);
-    }
-    s
-}
 
 fn test_meshes() -> Vec<(&'static str, Surface)> {
     let mut planar = grid(20, 15, 0.1);
@@ -114,14 +89,14 @@ fn mass_sums_to_area_for_both_kinds() {
             let m = mass_matrix(&s, kind).unwrap();
             let total: f64 = m.iter().sum();
             assert!(
-                ((total - area) / area).abs() < 1e-6,
+                ((total - area) / area).abs() < 1e-9,
                 "{name} {kind:?}: {total} vs {area}"
             );
             assert!(m.iter().all(|&x| x > 0.0), "{name} {kind:?}: zero mass");
         }
         let lap = cotan_laplacian(&s, &LaplacianParams::default()).unwrap();
         let total: f64 = lap.mass.iter().sum();
-        assert!(((total - area) / area).abs() < 1e-6);
+        assert!(((total - area) / area).abs() < 1e-9);
     }
 }
 
@@ -202,6 +177,25 @@ fn cholesky_solves_and_reuses_the_symbolic_analysis() {
         f.solve_many(&mut many).unwrap();
         assert_eq!(many, singles, "parallel solves differ from sequential ones");
     }
+    // A pattern from unsorted, one-sided columns is symmetrized and gets its diagonal.
+    let p =
+        std::sync::Arc::new(SparsityPattern::from_columns(&[vec![2], vec![], vec![1]]).unwrap());
+    assert_eq!(
+        (p.nnz(), p.column(0), p.column(2)),
+        (7, &[0, 2][..], &[0, 1, 2][..])
+    );
+    let tiny = SymmetricMatrix::new(p.clone(), vec![4.0, 1.0, 3.0, 0.5, 1.0, 0.5, 5.0]).unwrap();
+    let x = SymbolicCholesky::new(p)
+        .unwrap()
+        .factor(&tiny)
+        .unwrap()
+        .solve(&[1.0, 2.0, 3.0])
+        .unwrap();
+    let r = tiny.mul_vec(&x);
+    assert!(
+        (r[0] - 1.0).abs() + (r[1] - 2.0).abs() + (r[2] - 3.0).abs() < 1e-12,
+        "{r:?}"
+    );
     // L itself is only semi-definite (and negative): the factorization must refuse it.
     assert!(matches!(
         symbolic.factor(&lap.stiffness),
@@ -216,22 +210,6 @@ fn cholesky_solves_and_reuses_the_symbolic_analysis() {
         symbolic.factor(&small.stiffness),
         Err(LinalgError::InvalidPattern(_))
     ));
-}
-
-fn great_circle(p: [f32; 3], q: [f32; 3], r: f64) -> f64 {
-    let d: f64 = (0..3).map(|k| p[k] as f64 * q[k] as f64).sum::<f64>() / (r * r);
-    r * d.clamp(-1.0, 1.0).acos()
-}
-
-fn mean_relative_error(got: &[f64], want: &[f64], min_dist: f64) -> f64 {
-    let (mut sum, mut count) = (0.0, 0usize);
-    for (g, w) in got.iter().zip(want) {
-        if *w > min_dist {
-            sum += (g - w).abs() / w;
-            count += 1;
-        }
-    }
-    sum / count as f64
 }
 
 #[test]
@@ -322,6 +300,28 @@ fn heat_distance_on_a_plane_matches_euclidean() {
         };
         assert!(err < limit, "{boundary:?}: {err}");
     }
+}
+
+#[test]
+fn heat_distance_agrees_with_fast_marching_on_a_real_mesh() {
+    let path = common_geometry::shared_assets_dir().join("src_spot_keenan/spot_triangulated.obj");
+    let s = common_geometry::read_obj(&path);
+    let heat = HeatGeodesics::new(&s, &HeatParams::default(), &Control::new()).unwrap();
+    let d = heat.distance(&[Source::Vertex(0)]).unwrap();
+    assert!(d.iter().all(|x| x.is_finite() && *x >= 0.0));
+    let graph = WalkGraph::new(&s);
+    let all = WalkParams {
+        radius: 1e9,
+        metric: WalkMetric::FastMarching,
+    };
+    let mut fmm = vec![f64::NAN; s.vertex_count()];
+    for (v, x) in Walker::new(&graph).walk(0, &all).unwrap() {
+        fmm[v as usize] = x;
+    }
+    assert!(fmm.iter().all(|x| x.is_finite()), "spot is connected");
+    let err = mean_relative_error(&d, &fmm, 5.0 * heat.mean_edge());
+    eprintln!("spot: heat vs fast marching mean relative difference {err:.4}");
+    assert!(err < 0.03, "{err}");
 }
 
 /// Graph distance on `grid(n, n, 1)` (diagonals (i, j)–(i+1, j+1)) between lattice points.
@@ -540,71 +540,7 @@ fn params_deserialize_from_empty_json_to_defaults() {
 #[test]
 #[ignore = "run by scripts/crosscheck_libigl.py"]
 fn export_for_libigl_crosscheck() {
-    let out = std::env::var("RETEX_CROSSCHECK_DIR")
-        .map(std::path::PathBuf::from)
-        .unwrap_or_else(|_| {
-            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/crosscheck_libigl")
-        });
-    let assets = common_geometry::shared_assets_dir();
-    let meshes = [
-        ("icosphere", icosphere(1.0, 12)),
-        (
-            "spot",
-            common_geometry::read_obj(&assets.join("src_spot_keenan/spot_triangulated.obj")),
-        ),
-        (
-            "koala_low",
-            common_geometry::read_obj(
-                &assets.join("perf_koala_odedstein/koala_low_resolution.obj"),
-            ),
-        ),
-    ];
-    for (name, s) in meshes {
-        let dir = out.join(name);
-        std::fs::create_dir_all(&dir).unwrap();
-        let (n, m) = (s.vertex_count(), s.face_count());
-        let v: Vec<f64> = s.positions.iter().flatten().map(|&c| c as f64).collect();
-        let f: Vec<i64> = s.faces.iter().flatten().map(|&i| i as i64).collect();
-        common_geometry::write_f64(&dir, "V", &[n, 3], &v);
-        common_geometry::write_i64(&dir, "F", &[m, 3], &f);
-        let lap = cotan_laplacian(&s, &LaplacianParams::default()).unwrap();
-        let t = lap.stiffness.triplets();
-        common_geometry::write_i64(
-            &dir,
-            "L_rows",
-            &[t.len()],
-            &t.iter().map(|e| e.0 as i64).collect::<Vec<_>>(),
-        );
-        common_geometry::write_i64(
-            &dir,
-            "L_cols",
-            &[t.len()],
-            &t.iter().map(|e| e.1 as i64).collect::<Vec<_>>(),
-        );
-        common_geometry::write_f64(
-            &dir,
-            "L_vals",
-            &[t.len()],
-            &t.iter().map(|e| e.2).collect::<Vec<_>>(),
-        );
-        for (kind, file) in [
-            (MassKind::MixedVoronoi, "M_voronoi"),
-            (MassKind::Barycentric, "M_barycentric"),
-        ] {
-            common_geometry::write_f64(&dir, file, &[n], &mass_matrix(&s, kind).unwrap());
-        }
-        let c = principal_curvatures(&s, &CurvatureParams::default()).unwrap();
-        common_geometry::write_f64(&dir, "k_max", &[n], &c.k_max);
-        common_geometry::write_f64(&dir, "k_min", &[n], &c.k_min);
-        let flat = |d: &[[f64; 3]]| d.iter().flatten().copied().collect::<Vec<_>>();
-        common_geometry::write_f64(&dir, "dir_max", &[n, 3], &flat(&c.dir_max));
-        common_geometry::write_f64(&dir, "dir_min", &[n, 3], &flat(&c.dir_min));
-        common_geometry::write_f64(&dir, "normals", &[n, 3], &flat(&c.normals));
-        eprintln!(
-            "exported {name}: {n} vertices, {m} faces -> {}",
-            dir.display()
-        );
-    }
+    common_geometry::export_for_libigl();
 }
 
 /// Prints the geometry benchmark rows (release build: `cargo test --release --test
