@@ -567,3 +567,25 @@ fn bench_geometry_64k() {
         eprintln!("peak resident memory (VmHWM): {mib:.0} MiB");
     }
 }
+
+#[test]
+fn results_are_identical_for_any_thread_count() {
+    let s = jittered_sphere(1.0, 40, 0.01);
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let heat = HeatGeodesics::new(&s, &HeatParams::default(), &Control::new()).unwrap();
+            let queries = vec![vec![Source::Vertex(3)], vec![Source::Vertex(9000)]];
+            let d = heat.distance_many(&queries, &Control::new()).unwrap();
+            let c = principal_curvatures(&s, &CurvatureParams::default()).unwrap();
+            let l = cotan_laplacian(&s, &LaplacianParams::default()).unwrap();
+            (d, c.mean, l.stiffness.values().to_vec(), l.mass)
+        })
+    };
+    let (a, b) = (run(1), run(2));
+    assert!(a.0 == b.0, "heat distances differ between 1 and 2 threads");
+    assert!(a.1 == b.1 && a.2 == b.2 && a.3 == b.3, "operators differ");
+}
