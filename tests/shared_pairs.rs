@@ -15,30 +15,19 @@ fn pair(source: &str, target: &str, name: &str) -> serde_json::Value {
     let (tm, tb) = BlobSet::from_path(&shared_asset(target)).unwrap();
     let c = Constraints::from_json(br#"{"version": 1, "output": {"texture_size": 256}, "params": {"vertex_color_samples": 20000}}"#).unwrap();
     let input = TransferInput {
-        source: ModelInput {
-            main: &sm,
-            blobs: &sb,
-        },
-        target: ModelInput {
-            main: &tm,
-            blobs: &tb,
-        },
+        source: ModelInput { main: &sm, blobs: &sb },
+        target: ModelInput { main: &tm, blobs: &tb },
         constraints: c,
         limits: IngestLimits::default(),
     };
-    let out =
-        transfer(&input, &Control::new()).unwrap_or_else(|e| panic!("{source} → {target}: {e}"));
+    let out = transfer(&input, &Control::new()).unwrap_or_else(|e| panic!("{source} → {target}: {e}"));
     assert_validator_clean(&out.model, name);
     serde_json::to_value(&out.report).unwrap()
 }
 
 #[test]
 fn furniture_with_texture_transforms_onto_a_multi_primitive_sofa() {
-    let r = pair(
-        "src_sheen_chair_khronos/glTF/SheenChair.gltf",
-        "tgt_glam_velvet_sofa_khronos/glTF-Binary/GlamVelvetSofa.glb",
-        "pair_chair_sofa.glb",
-    );
+    let r = pair("src_sheen_chair_khronos/glTF/SheenChair.gltf", "tgt_glam_velvet_sofa_khronos/glTF-Binary/GlamVelvetSofa.glb", "pair_chair_sofa.glb");
     let textures = r["method_report"]["textures"].as_array().unwrap();
     assert!(!textures.is_empty());
     for t in textures {
@@ -53,21 +42,12 @@ fn fish_onto_a_fish_with_its_own_uvs_and_a_rotated_node() {
         "tgt_barramundi_fish_khronos_geometry/glTF/BarramundiFish_geometry_only_derived.gltf",
         "pair_blub_barramundi.glb",
     );
-    assert_eq!(
-        r["method_report"]["textures"].as_array().unwrap().len(),
-        1,
-        "{}",
-        r["method_report"]
-    );
+    assert_eq!(r["method_report"]["textures"].as_array().unwrap().len(), 1, "{}", r["method_report"]);
 }
 
 #[test]
 fn skinned_non_indexed_fox_onto_an_untextured_koala() {
-    let r = pair(
-        "src_fox_khronos/glTF-Binary/Fox.glb",
-        "perf_koala_odedstein/koala_low_resolution_derived.glb",
-        "pair_fox_koala.glb",
-    );
+    let r = pair("src_fox_khronos/glTF-Binary/Fox.glb", "perf_koala_odedstein/koala_low_resolution_derived.glb", "pair_fox_koala.glb");
     assert_eq!(r["method_report"]["vertex_colors"][0]["refined"], true);
 }
 
@@ -78,19 +58,11 @@ fn head_onto_an_open_bust_and_spot_onto_a_torus() {
         "tgt_demosthenes_bust_odedstein/demosthenes-low-res_derived.glb",
         "pair_head_bust.glb",
     );
-    pair(
-        "src_spot_keenan/spot_textured_derived.glb",
-        "tgt_primitives_odedstein_torus/torus_derived.glb",
-        "pair_spot_torus.glb",
-    );
+    pair("src_spot_keenan/spot_textured_derived.glb", "tgt_primitives_odedstein_torus/torus_derived.glb", "pair_spot_torus.glb");
 }
 
 #[test]
 fn skinned_source_onto_a_skinned_target_keeps_the_rig() {
-    let r = pair(
-        "src_spot_keenan/spot_textured_derived.glb",
-        "src_cesium_man_khronos/glTF-Binary/CesiumMan.glb",
-        "pair_spot_cesium_man.glb",
-    );
+    let r = pair("src_spot_keenan/spot_textured_derived.glb", "src_cesium_man_khronos/glTF-Binary/CesiumMan.glb", "pair_spot_cesium_man.glb");
     assert_eq!(r["method_report"]["textures"].as_array().unwrap().len(), 1);
 }

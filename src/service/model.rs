@@ -27,10 +27,7 @@ pub enum JobStatus {
 impl JobStatus {
     /// Whether the status can never change again.
     pub fn is_terminal(self) -> bool {
-        matches!(
-            self,
-            JobStatus::Succeeded | JobStatus::Failed | JobStatus::Canceled
-        )
+        matches!(self, JobStatus::Succeeded | JobStatus::Failed | JobStatus::Canceled)
     }
 
     /// The lowercase name used in JSON, SQL and query strings.

@@ -146,12 +146,7 @@ pub trait JobStore: Send + Sync + 'static {
     /// Records progress of a processing job (ignored once the job is terminal).
     fn update_progress(&self, id: Uuid, progress: &JobProgress) -> Result<(), StoreError>;
     /// Moves an enqueued or processing job to its terminal state in one transaction.
-    fn finish(
-        &self,
-        id: Uuid,
-        outcome: Finish,
-        now: DateTime<Utc>,
-    ) -> Result<JobRecord, StoreError>;
+    fn finish(&self, id: Uuid, outcome: Finish, now: DateTime<Utc>) -> Result<JobRecord, StoreError>;
     /// Cancels an enqueued job at once and returns it; a processing job is returned unchanged
     /// (the runner stops it cooperatively); a terminal job is a [`StoreError::Conflict`].
     fn cancel_if_enqueued(&self, id: Uuid, now: DateTime<Utc>) -> Result<JobRecord, StoreError>;
@@ -162,11 +157,7 @@ pub trait JobStore: Send + Sync + 'static {
     fn delete(&self, id: Uuid) -> Result<JobRecord, StoreError>;
     /// Removes terminal jobs finished before `finished_before` and idempotency keys older than
     /// `keys_before`; returns the removed records so their blobs can be deleted.
-    fn prune(
-        &self,
-        finished_before: DateTime<Utc>,
-        keys_before: DateTime<Utc>,
-    ) -> Result<Vec<JobRecord>, StoreError>;
+    fn prune(&self, finished_before: DateTime<Utc>, keys_before: DateTime<Utc>) -> Result<Vec<JobRecord>, StoreError>;
     /// Counts per status and the age of the queue.
     fn counts(&self) -> Result<StatusCounts, StoreError>;
 }
