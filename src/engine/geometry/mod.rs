@@ -2,7 +2,12 @@
 //! walks), curvature, and ray-cast shape features (solid angle, occlusion, shape diameter).
 //! Each operator is a plain function with a `Params` struct.
 
+pub mod bench;
+pub mod curvature;
+pub mod heat;
+pub mod laplacian;
 pub mod occlusion;
 pub mod ray_sets;
 pub mod sdf;
 pub mod solid_angle;
+pub mod walk;
