@@ -1,0 +1,591 @@
+//! Local tangent frames and the discrete exponential map (local geodesic polar coordinates)
+//! around every vertex, after Schmidt, Grimm & Wyvill, *Interactive Decal Compositing with
+//! Discrete Exponential Maps* (SIGGRAPH 2006, §3: "DEM").
+//!
+//! For a source vertex `p` with tangent frame `(t_p, b_p, n_p)` the chart position `U(p)` is the
+//! origin. Vertices are placed in Dijkstra order of their chart distance `|U(q)|` (the distance
+//! estimate of the DEM, not the graph distance). When vertex `r` is placed, each neighbour `q`
+//! gets the candidate `U(r) + |q - r| · (ê₁(r)·d, ê₂(r)·d)` where `d` is the edge `q - r`
+//! projected into the tangent plane of `r` and normalized, and `(ê₁(r), ê₂(r))` is the frame of
+//! `p` transported to `r`. The candidate with the smallest norm wins; `q` then inherits the frame
+//! of that `r`, carried into its own tangent plane by the minimal rotation taking `n_r` to `n_q`
+//! (frame transport along the Dijkstra tree, the discrete stand-in for parallel transport).
+//! On a plane every candidate is exact, so the chart reproduces planar polar coordinates.
+//!
+//! Optional [`ExpMapParams::upwind_average`]: when `q` is finalized, its position is replaced
+//! by the average of the candidates from *all* already-placed neighbours, weighted by
+//! `1/|q - r|²`. This is our own averaging variant in the spirit of the upwind schemes that
+//! followed the DEM (Melvær & Reimers 2012 improve the DEM with a triangle-based distance update,
+//! "DGPC", which is **not** implemented here).
+//!
+//! Polar angle `θ = atan2(y, x)` in `(-π, π]`, counter-clockwise about the normal, measured from
+//! the frame's tangent; `r = |U|` in world units. Written by hand: no crate does this.
+
+use super::super::control::{Cancelled, Control};
+use super::super::mesh::surface::Surface;
+use rayon::prelude::*;
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+
+/// Errors of the exponential map and of the frames.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ExpMapError {
+    /// The control was cancelled.
+    #[error("cancelled")]
+    Cancelled,
+    /// A parameter is outside its documented range.
+    #[error("parameter {name} = {value} is outside its valid range {range}")]
+    InvalidParam {
+        name: &'static str,
+        value: f64,
+        range: &'static str,
+    },
+    /// `frames` does not have one entry per vertex.
+    #[error("frames have {got} entries, the surface has {expected} vertices")]
+    FrameCount { expected: usize, got: usize },
+}
+
+impl From<Cancelled> for ExpMapError {
+    fn from(_: Cancelled) -> Self {
+        ExpMapError::Cancelled
+    }
+}
+
+/// How a radius is measured.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RadiusUnit {
+    /// Multiples of the surface's mean edge length (each undirected edge counted once per face
+    /// side, i.e. the mean over the 3 edges of every face). Default.
+    #[default]
+    MeanEdge,
+    /// World units.
+    World,
+}
+
+/// Resolves `radius` in `unit` to world units on `surface`.
+pub fn world_radius(surface: &Surface, radius: f32, unit: RadiusUnit) -> f32 {
+    match unit {
+        RadiusUnit::World => radius,
+        RadiusUnit::MeanEdge => radius * mean_edge_length(surface),
+    }
+}
+
+/// Mean length of the face edges (every face contributes its three edges), world units; 0 for
+/// a surface without faces.
+pub fn mean_edge_length(surface: &Surface) -> f32 {
+    if surface.faces.is_empty() {
+        return 0.0;
+    }
+    let sum: f64 = surface
+        .faces
+        .par_iter()
+        .map(|f| {
+            (0..3)
+                .map(|i| {
+                    let a = surface.positions[f[i] as usize];
+                    let b = surface.positions[f[(i + 1) % 3] as usize];
+                    norm(sub(b, a)) as f64
+                })
+                .sum::<f64>()
+        })
+        .sum();
+    (sum / (3 * surface.faces.len()) as f64) as f32
+}
+
+/// Parameters of [`local_frames`].
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct FrameParams {
+    /// Global reference direction for the tangent: where its projection into a vertex's tangent
+    /// plane is long enough, the tangent is that projection. `None` (default): always use the
+    /// one-ring edge reference (see [`local_frames`]).
+    pub up: Option<[f32; 3]>,
+    /// Minimum length of the projected `up` (relative to |up|) for it to be used; below it the
+    /// edge reference is used. Default: 0.1 (normal within ~84° of `up` is rejected). Range: (0, 1].
+    pub min_up_projection: f32,
+}
+
+impl Default for FrameParams {
+    fn default() -> Self {
+        Self {
+            up: None,
+            min_up_projection: 0.1,
+        }
+    }
+}
+
+/// A right-handed orthonormal frame per vertex: `bitangent = normal × tangent`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LocalFrames {
+    /// Unit vertex normals (angle-weighted, [`Surface::vertex_normals`]).
+    pub normal: Vec<[f32; 3]>,
+    /// Unit tangents: the reference direction `θ = 0` of the polar coordinates.
+    pub tangent: Vec<[f32; 3]>,
+    /// Unit bitangents (`θ = π/2`).
+    pub bitangent: Vec<[f32; 3]>,
+}
+
+impl LocalFrames {
+    /// Number of frames (vertices).
+    pub fn len(&self) -> usize {
+        self.normal.len()
+    }
+
+    /// Whether there are no frames.
+    pub fn is_empty(&self) -> bool {
+        self.normal.is_empty()
+    }
+}
+
+/// Per-vertex tangent frames from the angle-weighted vertex normals.
+///
+/// Tangent reference, in order: (1) the projection of `params.up` when given and long enough;
+/// (2) the projection of the edge from the vertex to the next corner of its lowest-index
+/// incident face; (3) for vertices without faces or with a zero normal, any unit vector
+/// orthogonal to the normal (normal `+z` if none). Deterministic.
+pub fn local_frames(surface: &Surface, params: &FrameParams) -> LocalFrames {
+    let nv = surface.vertex_count();
+    let normals = surface.vertex_normals();
+    // Lowest-index face per vertex and the corner after the vertex in it.
+    let mut first_next = vec![u32::MAX; nv];
+    for f in surface.faces.iter().rev() {
+        for i in 0..3 {
+            if f[i] != f[(i + 1) % 3] {
+                first_next[f[i] as usize] = f[(i + 1) % 3];
+            }
+        }
+    }
+    let mut out = LocalFrames {
+        normal: Vec::with_capacity(nv),
+        tangent: Vec::with_capacity(nv),
+        bitangent: Vec::with_capacity(nv),
+    };
+    for v in 0..nv {
+        let mut n = normals[v];
+        if norm(n) < 0.5 {
+            n = [0.0, 0.0, 1.0];
+        }
+        let project = |d: [f32; 3]| sub(d, scale(n, dot(d, n)));
+        let mut t = [0.0; 3];
+        if let Some(up) = params.up {
+            let p = project(up);
+            if norm(p) >= params.min_up_projection * norm(up) && norm(p) > 0.0 {
+                t = p;
+            }
+        }
+        if norm(t) == 0.0 && first_next[v] != u32::MAX {
+            let d = sub(
+                surface.positions[first_next[v] as usize],
+                surface.positions[v],
+            );
+            let p = project(d);
+            if norm(p) > 1e-6 * norm(d) {
+                t = p;
+            }
+        }
+        if norm(t) == 0.0 {
+            let axis = if n[0].abs() < 0.9 {
+                [1.0, 0.0, 0.0]
+            } else {
+                [0.0, 1.0, 0.0]
+            };
+            t = project(axis);
+        }
+        let t = normalize(t);
+        out.normal.push(n);
+        out.tangent.push(t);
+        out.bitangent.push(cross(n, t));
+    }
+    out
+}
+
+/// Parameters of [`exponential_map`].
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ExpMapParams {
+    /// Chart radius in `radius_unit`. Default: 3.0. Range: (0, ∞), finite.
+    pub radius: f32,
+    /// Unit of `radius`. Default: multiples of the mean edge length.
+    pub radius_unit: RadiusUnit,
+    /// Average the candidates of all placed neighbours when finalizing a vertex (see the module
+    /// docs). Default: false (the plain DEM).
+    pub upwind_average: bool,
+}
+
+impl Default for ExpMapParams {
+    fn default() -> Self {
+        Self {
+            radius: 3.0,
+            radius_unit: RadiusUnit::MeanEdge,
+            upwind_average: false,
+        }
+    }
+}
+
+/// Charts of all vertices, CSR: source `s` owns entries `offsets[s]..offsets[s + 1]`, the first
+/// being `s` itself at the origin, the rest in placement order (non-decreasing `r`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ExpMap {
+    /// World radius the charts were cut at.
+    pub radius: f32,
+    /// `vertex_count + 1` offsets.
+    pub offsets: Vec<u32>,
+    /// Chart vertex indices.
+    pub vertex: Vec<u32>,
+    /// Chart coordinates `(x, y)` along (tangent, bitangent) of the source, world units.
+    pub coords: Vec<[f32; 2]>,
+}
+
+impl ExpMap {
+    /// The chart of `source`: vertices and their `(x, y)` coordinates.
+    pub fn chart(&self, source: usize) -> (&[u32], &[[f32; 2]]) {
+        let a = self.offsets[source] as usize;
+        let b = self.offsets[source + 1] as usize;
+        (&self.vertex[a..b], &self.coords[a..b])
+    }
+
+    /// Polar coordinates `(r, θ)` of a chart position: `r = |U|`, `θ = atan2(y, x)`.
+    pub fn polar(xy: [f32; 2]) -> (f32, f32) {
+        (xy[0].hypot(xy[1]), xy[1].atan2(xy[0]))
+    }
+}
+
+/// Computes the chart of every vertex up to `params.radius` (parallel over sources, one
+/// Control stage "exponential map" with one unit of work per vertex).
+///
+/// # Errors
+/// [`ExpMapError::InvalidParam`], [`ExpMapError::FrameCount`], [`ExpMapError::Cancelled`].
+pub fn exponential_map(
+    surface: &Surface,
+    frames: &LocalFrames,
+    params: &ExpMapParams,
+    control: &Control,
+) -> Result<ExpMap, ExpMapError> {
+    let nv = surface.vertex_count();
+    if frames.len() != nv {
+        return Err(ExpMapError::FrameCount {
+            expected: nv,
+            got: frames.len(),
+        });
+    }
+    if !(params.radius > 0.0 && params.radius.is_finite()) {
+        return Err(ExpMapError::InvalidParam {
+            name: "radius",
+            value: params.radius as f64,
+            range: "(0, inf)",
+        });
+    }
+    let radius = world_radius(surface, params.radius, params.radius_unit);
+    let adjacency = Adjacency::new(surface);
+    let stage = control.stage("exponential map", nv as u64)?;
+    let per_chunk: Vec<(Vec<u32>, Vec<[f32; 2]>, Vec<u32>)> = (0..nv)
+        .into_par_iter()
+        .chunks(CHUNK)
+        .map_init(
+            || ChartBuilder::new(nv),
+            |builder, sources| {
+                let mut verts = Vec::new();
+                let mut coords = Vec::new();
+                let mut counts = Vec::with_capacity(sources.len());
+                for &s in &sources {
+                    let chart = builder.build(surface, &adjacency, frames, s, radius, params);
+                    let mut count = 0u32;
+                    for (v, u) in chart.vertex.iter().zip(chart.coords) {
+                        if u[0].hypot(u[1]) <= radius {
+                            verts.push(*v);
+                            coords.push(*u);
+                            count += 1;
+                        }
+                    }
+                    counts.push(count);
+                }
+                stage.tick(sources.len() as u64)?;
+                Ok((verts, coords, counts))
+            },
+        )
+        .collect::<Result<_, Cancelled>>()?;
+    let total: usize = per_chunk.iter().map(|c| c.0.len()).sum();
+    let mut out = ExpMap {
+        radius,
+        offsets: Vec::with_capacity(nv + 1),
+        vertex: Vec::with_capacity(total),
+        coords: Vec::with_capacity(total),
+    };
+    out.offsets.push(0);
+    for (verts, coords, counts) in per_chunk {
+        out.vertex.extend_from_slice(&verts);
+        out.coords.extend_from_slice(&coords);
+        for c in counts {
+            let last = *out.offsets.last().unwrap_or(&0);
+            out.offsets.push(last + c);
+        }
+    }
+    Ok(out)
+}
+
+/// Sources per parallel work item (and per progress tick).
+pub(crate) const CHUNK: usize = 256;
+
+/// Vertex one-rings as CSR (neighbours ascending, each once), from the faces.
+pub(crate) struct Adjacency {
+    offsets: Vec<u32>,
+    neighbors: Vec<u32>,
+}
+
+impl Adjacency {
+    pub(crate) fn new(surface: &Surface) -> Self {
+        let nv = surface.vertex_count();
+        let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(surface.faces.len() * 6);
+        for f in &surface.faces {
+            for i in 0..3 {
+                let (a, b) = (f[i], f[(i + 1) % 3]);
+                if a != b {
+                    pairs.push((a, b));
+                    pairs.push((b, a));
+                }
+            }
+        }
+        pairs.par_sort_unstable();
+        pairs.dedup();
+        let mut offsets = vec![0u32; nv + 1];
+        for &(a, _) in &pairs {
+            offsets[a as usize + 1] += 1;
+        }
+        for v in 0..nv {
+            offsets[v + 1] += offsets[v];
+        }
+        Adjacency {
+            offsets,
+            neighbors: pairs.into_iter().map(|p| p.1).collect(),
+        }
+    }
+
+    fn of(&self, v: usize) -> &[u32] {
+        &self.neighbors[self.offsets[v] as usize..self.offsets[v + 1] as usize]
+    }
+}
+
+/// One chart, borrowed from a [`ChartBuilder`]: vertices in placement order (source first).
+pub(crate) struct Chart<'a> {
+    pub vertex: &'a [u32],
+    pub coords: &'a [[f32; 2]],
+}
+
+/// Reusable scratch for building charts one source at a time.
+pub(crate) struct ChartBuilder {
+    /// Slot of each mesh vertex in the local arrays; `u32::MAX` when untouched.
+    slot: Vec<u32>,
+    vertex: Vec<u32>,
+    coords: Vec<[f32; 2]>,
+    /// Transported first frame axis per local vertex (in that vertex's tangent plane).
+    axis: Vec<[f32; 3]>,
+    done: Vec<bool>,
+    /// Finalized vertices in placement order (local slots).
+    order: Vec<u32>,
+    order_vertex: Vec<u32>,
+    order_coords: Vec<[f32; 2]>,
+    heap: BinaryHeap<Reverse<(u32, u32)>>,
+}
+
+impl ChartBuilder {
+    pub(crate) fn new(vertex_count: usize) -> Self {
+        ChartBuilder {
+            slot: vec![u32::MAX; vertex_count],
+            vertex: Vec::new(),
+            coords: Vec::new(),
+            axis: Vec::new(),
+            done: Vec::new(),
+            order: Vec::new(),
+            order_vertex: Vec::new(),
+            order_coords: Vec::new(),
+            heap: BinaryHeap::new(),
+        }
+    }
+
+    /// Candidate chart position of `q` from the placed vertex with local slot `r`.
+    fn candidate(&self, surface: &Surface, frames: &LocalFrames, r: usize, q: usize) -> [f32; 2] {
+        let rv = self.vertex[r] as usize;
+        let n = frames.normal[rv];
+        let d = sub(surface.positions[q], surface.positions[rv]);
+        let len = norm(d);
+        let t = sub(d, scale(n, dot(d, n)));
+        let tl = norm(t);
+        if tl <= 1e-12 * len.max(1e-30) {
+            return self.coords[r];
+        }
+        let e1 = self.axis[r];
+        let e2 = cross(n, e1);
+        let k = len / tl;
+        let u = self.coords[r];
+        [u[0] + k * dot(t, e1), u[1] + k * dot(t, e2)]
+    }
+
+    /// Builds the chart of `source` up to `radius` (world units): the finalized vertices, all
+    /// with `|U| <= radius` (upwind averaging may move a vertex marginally past it).
+    pub(crate) fn build(
+        &mut self,
+        surface: &Surface,
+        adjacency: &Adjacency,
+        frames: &LocalFrames,
+        source: usize,
+        radius: f32,
+        params: &ExpMapParams,
+    ) -> Chart<'_> {
+        for &v in &self.vertex {
+            self.slot[v as usize] = u32::MAX;
+        }
+        self.vertex.clear();
+        self.coords.clear();
+        self.axis.clear();
+        self.done.clear();
+        self.order.clear();
+        self.order_vertex.clear();
+        self.order_coords.clear();
+        self.heap.clear();
+
+        self.slot[source] = 0;
+        self.vertex.push(source as u32);
+        self.coords.push([0.0, 0.0]);
+        self.axis.push(frames.tangent[source]);
+        self.done.push(false);
+        self.heap.push(Reverse((0, 0)));
+        while let Some(Reverse((key, r))) = self.heap.pop() {
+            let r = r as usize;
+            if self.done[r] || key != dist_key(self.coords[r]) {
+                continue; // stale entry
+            }
+            if f32::from_bits(key) > radius {
+                break;
+            }
+            let rv = self.vertex[r] as usize;
+            if params.upwind_average && r != 0 {
+                self.average_upwind(surface, adjacency, frames, r);
+            }
+            self.done[r] = true;
+            self.order.push(r as u32);
+            self.order_vertex.push(rv as u32);
+            self.order_coords.push(self.coords[r]);
+            for &q in adjacency.of(rv) {
+                let q = q as usize;
+                let cand = self.candidate(surface, frames, r, q);
+                let ck = dist_key(cand);
+                let qs = self.slot[q];
+                let qs = if qs == u32::MAX {
+                    let s = self.vertex.len();
+                    self.slot[q] = s as u32;
+                    self.vertex.push(q as u32);
+                    self.coords.push(cand);
+                    self.axis.push([0.0; 3]);
+                    self.done.push(false);
+                    s
+                } else {
+                    let s = qs as usize;
+                    if self.done[s] || ck >= dist_key(self.coords[s]) {
+                        continue;
+                    }
+                    self.coords[s] = cand;
+                    s
+                };
+                self.axis[qs] = transport(self.axis[r], frames.normal[rv], frames.normal[q]);
+                self.heap.push(Reverse((ck, qs as u32)));
+            }
+        }
+        Chart {
+            vertex: &self.order_vertex,
+            coords: &self.order_coords,
+        }
+    }
+
+    /// Replaces the position of local vertex `s` by the `1/|q - r|²`-weighted mean of the
+    /// candidates from all finalized neighbours `r`.
+    fn average_upwind(
+        &mut self,
+        surface: &Surface,
+        adjacency: &Adjacency,
+        frames: &LocalFrames,
+        s: usize,
+    ) {
+        let q = self.vertex[s] as usize;
+        let (mut wx, mut wy, mut ws) = (0.0f32, 0.0f32, 0.0f32);
+        for &r in adjacency.of(q) {
+            let rs = self.slot[r as usize];
+            if rs == u32::MAX || !self.done[rs as usize] {
+                continue;
+            }
+            let d = sub(surface.positions[q], surface.positions[r as usize]);
+            let w = 1.0 / dot(d, d).max(1e-30);
+            let c = self.candidate(surface, frames, rs as usize, q);
+            wx += w * c[0];
+            wy += w * c[1];
+            ws += w;
+        }
+        if ws > 0.0 {
+            self.coords[s] = [wx / ws, wy / ws];
+        }
+    }
+}
+
+/// Heap key of a chart position: the bits of `|U|` (non-negative floats order like integers).
+fn dist_key(u: [f32; 2]) -> u32 {
+    u[0].hypot(u[1]).to_bits()
+}
+
+/// Carries the unit vector `v` (tangent at a vertex with normal `from`) into the tangent plane
+/// of normal `to` by the minimal rotation taking `from` to `to`; renormalized.
+fn transport(v: [f32; 3], from: [f32; 3], to: [f32; 3]) -> [f32; 3] {
+    let c = dot(from, to);
+    let out = if c > -0.99 {
+        // Rodrigues with k = from × to (|k| = sin): R v = v c + k × v + k (k·v) / (1 + c).
+        let k = cross(from, to);
+        let kv = dot(k, v) / (1.0 + c);
+        let kx = cross(k, v);
+        [
+            v[0] * c + kx[0] + k[0] * kv,
+            v[1] * c + kx[1] + k[1] * kv,
+            v[2] * c + kx[2] + k[2] * kv,
+        ]
+    } else {
+        v
+    };
+    let p = sub(out, scale(to, dot(out, to)));
+    let l = norm(p);
+    if l > 1e-12 {
+        scale(p, 1.0 / l)
+    } else {
+        out
+    }
+}
+
+pub(crate) fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+pub(crate) fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+pub(crate) fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+pub(crate) fn scale(a: [f32; 3], s: f32) -> [f32; 3] {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+
+pub(crate) fn norm(a: [f32; 3]) -> f32 {
+    dot(a, a).sqrt()
+}
+
+fn normalize(a: [f32; 3]) -> [f32; 3] {
+    let l = norm(a);
+    if l > 0.0 {
+        scale(a, 1.0 / l)
+    } else {
+        a
+    }
+}

@@ -1,0 +1,655 @@
+//! Exponential map and geodesic fans: analytic cases on a plane and a sphere, rotation
+//! recovery, determinism across thread counts, errors; and an ignored benchmark
+//! (`cargo test --release --no-default-features --test geodesic_fans -- --ignored --nocapture`).
+
+use retex::engine::control::Control;
+use retex::engine::geometry::expmap::{
+    exponential_map, local_frames, ExpMap, ExpMapError, ExpMapParams, FrameParams, LocalFrames,
+    RadiusUnit,
+};
+use retex::engine::geometry::fans::{
+    geodesic_fans, FanError, FanFilter, FanParams, FanShape, Fans, FieldRef,
+};
+use retex::engine::mesh::surface::Surface;
+use std::collections::HashMap;
+use std::f32::consts::{PI, TAU};
+
+// ---------------------------------------------------------------------------------------------
+// Fixtures
+
+/// Geodesic icosphere of frequency `n` on the unit sphere: `10 n² + 2` vertices. Points on shared
+/// edges are keyed by their exact integer barycentric weights on the icosahedron's corners, so
+/// they are welded exactly.
+fn icosphere(n: u32) -> Surface {
+    let t = (1.0 + 5f64.sqrt()) / 2.0;
+    let corners: [[f64; 3]; 12] = [
+        [-1.0, t, 0.0],
+        [1.0, t, 0.0],
+        [-1.0, -t, 0.0],
+        [1.0, -t, 0.0],
+        [0.0, -1.0, t],
+        [0.0, 1.0, t],
+        [0.0, -1.0, -t],
+        [0.0, 1.0, -t],
+        [t, 0.0, -1.0],
+        [t, 0.0, 1.0],
+        [-t, 0.0, -1.0],
+        [-t, 0.0, 1.0],
+    ];
+    let ico: [[u32; 3]; 20] = [
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    let mut index: HashMap<Vec<(u32, u32)>, u32> = HashMap::new();
+    let mut positions = Vec::new();
+    let mut faces = Vec::new();
+    for f in ico {
+        let mut id = |i: u32, j: u32| -> u32 {
+            let mut key: Vec<(u32, u32)> = [(f[0], n - i - j), (f[1], i), (f[2], j)]
+                .into_iter()
+                .filter(|&(_, w)| w > 0)
+                .collect();
+            key.sort_unstable();
+            *index.entry(key.clone()).or_insert_with(|| {
+                let mut p = [0.0f64; 3];
+                for &(c, w) in &key {
+                    for k in 0..3 {
+                        p[k] += w as f64 * corners[c as usize][k];
+                    }
+                }
+                let l = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+                positions.push(p.map(|c| (c / l) as f32));
+                (positions.len() - 1) as u32
+            })
+        };
+        for i in 0..n {
+            for j in 0..n - i {
+                faces.push([id(i, j), id(i + 1, j), id(i, j + 1)]);
+                if i + j + 1 < n {
+                    faces.push([id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)]);
+                }
+            }
+        }
+    }
+    Surface::from_triangles(positions, faces)
+}
+
+/// Deterministic pseudo-random in [-0.5, 0.5).
+fn jitter(i: u32) -> f32 {
+    let mut x = i.wrapping_mul(0x9E37_79B9) ^ 0x85EB_CA6B;
+    x ^= x >> 15;
+    x = x.wrapping_mul(0x2C1B_3C6D);
+    x ^= x >> 12;
+    (x >> 8) as f32 / (1u32 << 24) as f32 - 0.5
+}
+
+/// `(n+1)²` vertices on `[0, 1]²` in the plane z = 0, interior vertices jittered in-plane by up
+/// to `jit` grid spacings.
+fn plane_grid(n: u32, jit: f32) -> Surface {
+    let h = 1.0 / n as f32;
+    let mut positions = Vec::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            let id = j * (n + 1) + i;
+            let interior = i > 0 && j > 0 && i < n && j < n;
+            let (dx, dy) = if interior {
+                (jit * jitter(2 * id), jit * jitter(2 * id + 1))
+            } else {
+                (0.0, 0.0)
+            };
+            positions.push([(i as f32 + dx) * h, (j as f32 + dy) * h, 0.0]);
+        }
+    }
+    let mut faces = Vec::new();
+    let v = |i: u32, j: u32| j * (n + 1) + i;
+    for j in 0..n {
+        for i in 0..n {
+            faces.push([v(i, j), v(i + 1, j), v(i + 1, j + 1)]);
+            faces.push([v(i, j), v(i + 1, j + 1), v(i, j + 1)]);
+        }
+    }
+    Surface::from_triangles(positions, faces)
+}
+
+/// A polar disk in z = 0: the centre (vertex 0) and `rings` rings of `spokes` vertices at radii
+/// `1..=rings` and angles `2πm/spokes`. Invariant under rotation by `2π/spokes`.
+fn polar_disk(rings: u32, spokes: u32) -> Surface {
+    let mut positions = vec![[0.0f32; 3]];
+    for k in 1..=rings {
+        for m in 0..spokes {
+            let a = TAU * m as f32 / spokes as f32;
+            positions.push([k as f32 * a.cos(), k as f32 * a.sin(), 0.0]);
+        }
+    }
+    let v = |k: u32, m: u32| 1 + (k - 1) * spokes + m % spokes;
+    let mut faces = Vec::new();
+    for m in 0..spokes {
+        faces.push([0, v(1, m), v(1, m + 1)]);
+        for k in 1..rings {
+            faces.push([v(k, m), v(k + 1, m), v(k + 1, m + 1)]);
+            faces.push([v(k, m), v(k + 1, m + 1), v(k, m + 1)]);
+        }
+    }
+    Surface::from_triangles(positions, faces)
+}
+
+fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn angle_diff(a: f32, b: f32) -> f32 {
+    let d = (a - b).rem_euclid(TAU);
+    d.min(TAU - d)
+}
+
+fn frames_of(s: &Surface) -> LocalFrames {
+    local_frames(s, &FrameParams::default())
+}
+
+// ---------------------------------------------------------------------------------------------
+// Exponential map
+
+/// On a plane the chart of every vertex is its planar polar coordinates in its own frame.
+#[test]
+fn expmap_on_plane_reproduces_polar_coordinates() {
+    let s = plane_grid(40, 0.3);
+    let frames = frames_of(&s);
+    let params = ExpMapParams {
+        radius: 0.15,
+        radius_unit: RadiusUnit::World,
+        upwind_average: false,
+    };
+    let map = exponential_map(&s, &frames, &params, &Control::new()).unwrap();
+    let mut checked = 0;
+    for p in 0..s.vertex_count() {
+        let c = s.positions[p];
+        let inside = (0..2).all(|k| c[k] > 0.2 && c[k] < 0.8);
+        let (verts, coords) = map.chart(p);
+        assert_eq!(verts[0] as usize, p);
+        for (&q, &xy) in verts.iter().zip(coords) {
+            let d = sub(s.positions[q as usize], c);
+            let (r, theta) = ExpMap::polar(xy);
+            let r_true = dot(d, d).sqrt();
+            assert!(
+                (r - r_true).abs() < 0.01 * map.radius,
+                "source {p} vertex {q}: r {r} vs {r_true}"
+            );
+            if r_true > 0.1 * map.radius {
+                let t_true = dot(d, frames.bitangent[p]).atan2(dot(d, frames.tangent[p]));
+                assert!(
+                    angle_diff(theta, t_true) < 1e-3,
+                    "source {p} vertex {q}: θ {theta} vs {t_true}"
+                );
+            }
+            checked += 1;
+        }
+        if inside {
+            // Complete: every vertex within 99% of the radius is in the chart.
+            let want = (0..s.vertex_count())
+                .filter(|&q| {
+                    let d = sub(s.positions[q], c);
+                    dot(d, d).sqrt() < 0.99 * map.radius
+                })
+                .count();
+            let have = coords
+                .iter()
+                .filter(|xy| ExpMap::polar(**xy).0 < 0.99 * map.radius)
+                .count();
+            assert_eq!(have, want, "source {p}");
+        }
+    }
+    assert!(checked > 100_000, "{checked}");
+}
+
+/// Mean relative error of chart radius against great-circle distance and of the angle against
+/// the analytic logarithm map, over all (source, vertex) pairs with `r > 2 * min_r`.
+fn sphere_errors(s: &Surface, frames: &LocalFrames, map: &ExpMap) -> (f64, f64, f32) {
+    let (mut rel, mut ang, mut count) = (0.0f64, 0.0f64, 0usize);
+    let mut worst = 0.0f32;
+    for p in 0..s.vertex_count() {
+        let c = s.positions[p];
+        let (verts, coords) = map.chart(p);
+        for (&q, &xy) in verts.iter().zip(coords).skip(1) {
+            let x = s.positions[q as usize];
+            let gc = dot(x, c).clamp(-1.0, 1.0).acos();
+            if gc < 0.1 * map.radius {
+                continue;
+            }
+            let (r, theta) = ExpMap::polar(xy);
+            let e = (r - gc).abs() / gc;
+            worst = worst.max(e);
+            rel += e as f64;
+            let proj = sub(x, c.map(|k| k * dot(x, c)));
+            let t_true = dot(proj, frames.bitangent[p]).atan2(dot(proj, frames.tangent[p]));
+            ang += angle_diff(theta, t_true) as f64;
+            count += 1;
+        }
+    }
+    (rel / count as f64, ang / count as f64, worst)
+}
+
+/// On a ~10k-vertex unit sphere, chart radii match great-circle distances.
+#[test]
+fn expmap_on_sphere_matches_great_circle_distance() {
+    let s = icosphere(32);
+    assert_eq!(s.vertex_count(), 10242);
+    let frames = frames_of(&s);
+    for upwind_average in [false, true] {
+        let params = ExpMapParams {
+            radius: 0.4,
+            radius_unit: RadiusUnit::World,
+            upwind_average,
+        };
+        let map = exponential_map(&s, &frames, &params, &Control::new()).unwrap();
+        let (rel, ang, worst) = sphere_errors(&s, &frames, &map);
+        println!(
+            "sphere expmap upwind_average={upwind_average}: mean rel r error {rel:.4}, \
+             mean θ error {ang:.4} rad, worst rel r error {worst:.4}, {} chart entries",
+            map.vertex.len()
+        );
+        assert!(rel < 0.02, "mean relative radius error {rel}");
+        assert!(ang < 0.05, "mean angle error {ang}");
+    }
+}
+
+#[test]
+fn expmap_rejects_bad_input_and_honours_cancellation() {
+    let s = plane_grid(8, 0.0);
+    let frames = frames_of(&s);
+    let bad = ExpMapParams {
+        radius: -1.0,
+        ..Default::default()
+    };
+    assert!(matches!(
+        exponential_map(&s, &frames, &bad, &Control::new()),
+        Err(ExpMapError::InvalidParam { name: "radius", .. })
+    ));
+    let short = LocalFrames::default();
+    assert!(matches!(
+        exponential_map(&s, &short, &ExpMapParams::default(), &Control::new()),
+        Err(ExpMapError::FrameCount {
+            expected: 81,
+            got: 0
+        })
+    ));
+    let c = Control::new();
+    c.cancel();
+    assert_eq!(
+        exponential_map(&s, &frames, &ExpMapParams::default(), &c),
+        Err(ExpMapError::Cancelled)
+    );
+}
+
+#[test]
+fn frames_are_orthonormal_and_follow_up_where_defined() {
+    let s = icosphere(8);
+    let up = [0.0, 0.0, 1.0];
+    let frames = local_frames(
+        &s,
+        &FrameParams {
+            up: Some(up),
+            ..Default::default()
+        },
+    );
+    for v in 0..s.vertex_count() {
+        let (n, t, b) = (frames.normal[v], frames.tangent[v], frames.bitangent[v]);
+        for (x, y) in [(n, t), (n, b), (t, b)] {
+            assert!(dot(x, y).abs() < 1e-5);
+        }
+        for x in [n, t, b] {
+            assert!((dot(x, x) - 1.0).abs() < 1e-5);
+        }
+        let along = up[2] - n[2] * dot(up, n);
+        if along > 0.2 {
+            // Tangent is the projected up direction.
+            assert!(dot(t, up) > 0.0 && (dot(t, up) - along.sqrt()).abs() < 1e-4);
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Fans
+
+/// Three linear channels on the plane.
+fn linear_field(s: &Surface) -> Vec<f32> {
+    let lin = |p: [f32; 3]| {
+        [
+            2.0 * p[0] - 3.0 * p[1] + 1.0,
+            0.5 * p[0] + p[1],
+            -p[0] + 0.25,
+        ]
+    };
+    s.positions.iter().flat_map(|&p| lin(p)).collect()
+}
+
+/// Max |fan − analytic| over fans whose samples (plus the filter reach when `full_support`)
+/// stay inside the unit square; with the number of fans checked.
+fn linear_fan_error(
+    s: &Surface,
+    frames: &LocalFrames,
+    fans: &Fans,
+    full_support: bool,
+) -> (f32, usize) {
+    let lin = |p: [f32; 3]| {
+        [
+            2.0 * p[0] - 3.0 * p[1] + 1.0,
+            0.5 * p[0] + p[1],
+            -p[0] + 0.25,
+        ]
+    };
+    let shape = fans.shape();
+    let margin = fans.radius + if full_support { 3.0 * fans.sigma } else { 0.0 };
+    let (mut worst, mut count) = (0.0f32, 0);
+    for v in 0..s.vertex_count() {
+        let c = s.positions[v];
+        if !(0..2).all(|k| c[k] > margin && c[k] < 1.0 - margin) {
+            continue;
+        }
+        let fan = fans.fan(v);
+        for ring in 0..shape.rings {
+            for spoke in 0..shape.spokes {
+                let [x, y] = shape.sample_position(fans.radius, ring, spoke);
+                let (t, b) = (frames.tangent[v], frames.bitangent[v]);
+                let p: [f32; 3] = std::array::from_fn(|k| c[k] + x * t[k] + y * b[k]);
+                let want = lin(p);
+                let got = &fan[(ring * shape.spokes + spoke) * 3..][..3];
+                for k in 0..3 {
+                    worst = worst.max((got[k] - want[k]).abs());
+                }
+            }
+        }
+        count += 1;
+    }
+    (worst, count)
+}
+
+/// Gaussian-filtered linear = linear: fans of a linear field on a (jittered) plane equal the
+/// field at the sample points.
+#[test]
+fn fans_of_linear_field_on_plane_match_analytic_samples() {
+    let s = plane_grid(60, 0.3);
+    let frames = frames_of(&s);
+    let field = linear_field(&s);
+    let field = FieldRef {
+        dim: 3,
+        values: &field,
+    };
+    // Field gradients are O(3) per unit length; the fan radius is 3 edges = 0.05.
+    let local = geodesic_fans(&s, &frames, field, &FanParams::default(), &Control::new()).unwrap();
+    let (err, n) = linear_fan_error(&s, &frames, &local, false);
+    println!("local-linear: max error {err:.2e} over {n} fans");
+    assert!(
+        n > 1000 && err < 1e-4,
+        "local-linear max error {err} over {n} fans"
+    );
+    let gauss_params = FanParams {
+        filter: FanFilter::Gaussian,
+        ..Default::default()
+    };
+    let gauss = geodesic_fans(&s, &frames, field, &gauss_params, &Control::new()).unwrap();
+    let (err, n) = linear_fan_error(&s, &frames, &gauss, true);
+    // Plain Gaussian mean: exact only up to the bias of the weighted centroid of the discrete,
+    // jittered samples. Bound: centroid within 0.2 grid spacings (h = 1/60) of the sample point,
+    // times the largest gradient |(2, -3)| = 3.61.
+    println!("gaussian: max error {err:.2e} over {n} fans");
+    let bound = 0.2 / 60.0 * 3.61;
+    assert!(
+        n > 500 && err < bound,
+        "gaussian max error {err} over {n} fans (bound {bound})"
+    );
+}
+
+fn bumpy_field(p: [f32; 3]) -> [f32; 3] {
+    [
+        (1.3 * p[0] + 0.4 * p[1]).sin(),
+        (0.7 * p[1] - 0.2 * p[0] * p[1]).cos(),
+        0.1 * p[0] * p[0] + 0.3 * p[1],
+    ]
+}
+
+/// Rotating the field by k·360°/A about the centre of a rotation-symmetric disk shifts the
+/// centre fan by k spokes, and `best_rotation` finds k.
+#[test]
+fn best_rotation_recovers_field_rotation_about_vertex() {
+    let s = polar_disk(8, 36);
+    let frames = frames_of(&s);
+    let params = FanParams {
+        radius: 4.0,
+        radius_unit: RadiusUnit::World,
+        ..Default::default()
+    };
+    let fan_of = |angle: f32| {
+        let (c, si) = (angle.cos(), angle.sin());
+        let values: Vec<f32> = s
+            .positions
+            .iter()
+            .flat_map(|p| bumpy_field([c * p[0] + si * p[1], -si * p[0] + c * p[1], 0.0]))
+            .collect();
+        let fans = geodesic_fans(
+            &s,
+            &frames,
+            FieldRef {
+                dim: 3,
+                values: &values,
+            },
+            &params,
+            &Control::new(),
+        )
+        .unwrap();
+        fans.fan(0).to_vec()
+    };
+    let base = fan_of(0.0);
+    let shape = FanShape {
+        rings: 3,
+        spokes: 18,
+        dim: 3,
+    };
+    for k in 0..18 {
+        let rotated = fan_of(k as f32 * TAU / 18.0);
+        let (best, d) = shape.best_rotation(&base, &rotated);
+        let second = (0..18)
+            .filter(|&j| j != best)
+            .map(|j| shape.distance(&base, &rotated, j))
+            .fold(f32::INFINITY, f32::min);
+        assert_eq!(best, k, "distance {d}, next best {second}");
+        assert!(d < 1e-3 * second, "k {k}: best {d} vs next {second}");
+    }
+}
+
+/// A synthetic fan cyclically shifted by k spokes: distance 0 at k, best rotation k.
+#[test]
+fn best_rotation_recovers_cyclic_shift_of_synthetic_fan() {
+    let shape = FanShape {
+        rings: 3,
+        spokes: 18,
+        dim: 3,
+    };
+    let a: Vec<f32> = (0..shape.len() as u32).map(jitter).collect();
+    for k in 0..18 {
+        let mut b = vec![0.0f32; shape.len()];
+        for ring in 0..3 {
+            for j in 0..18 {
+                for c in 0..3 {
+                    b[(ring * 18 + (j + k) % 18) * 3 + c] = a[(ring * 18 + j) * 3 + c];
+                }
+            }
+        }
+        assert_eq!(shape.distance(&a, &b, k), 0.0);
+        assert_eq!(shape.best_rotation(&a, &b), (k, 0.0));
+        let brute = (0..18)
+            .map(|j| shape.distance(&a, &b, j))
+            .fold(f32::INFINITY, f32::min);
+        assert_eq!(brute, 0.0);
+        assert!(shape.distance(&a, &b, (k + 1) % 18) > 0.1);
+    }
+}
+
+#[test]
+fn fans_are_identical_with_one_and_two_threads() {
+    let s = icosphere(12);
+    let frames = frames_of(&s);
+    let values: Vec<f32> = s
+        .positions
+        .iter()
+        .flat_map(|&p| bumpy_field(p.map(|c| 4.0 * c)))
+        .collect();
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let map =
+                exponential_map(&s, &frames, &ExpMapParams::default(), &Control::new()).unwrap();
+            let fans = geodesic_fans(
+                &s,
+                &frames,
+                FieldRef {
+                    dim: 3,
+                    values: &values,
+                },
+                &FanParams::default(),
+                &Control::new(),
+            )
+            .unwrap();
+            (map, fans)
+        })
+    };
+    let (m1, f1) = run(1);
+    let (m2, f2) = run(2);
+    assert_eq!(m1, m2);
+    assert_eq!(f1.data.len(), s.vertex_count() * 162);
+    let bits = |f: &Fans| f.data.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&f1), bits(&f2));
+}
+
+#[test]
+fn fans_reject_bad_input_and_honour_cancellation() {
+    let s = plane_grid(8, 0.0);
+    let frames = frames_of(&s);
+    let values = vec![0.0f32; 81 * 3];
+    let field = FieldRef {
+        dim: 3,
+        values: &values[..80],
+    };
+    assert!(matches!(
+        geodesic_fans(&s, &frames, field, &FanParams::default(), &Control::new()),
+        Err(FanError::LengthMismatch {
+            what: "field",
+            expected: 243,
+            got: 80
+        })
+    ));
+    let field = FieldRef {
+        dim: 3,
+        values: &values,
+    };
+    let bad = FanParams {
+        rings: 0,
+        ..Default::default()
+    };
+    assert!(matches!(
+        geodesic_fans(&s, &frames, field, &bad, &Control::new()),
+        Err(FanError::InvalidParam { name: "rings", .. })
+    ));
+    let c = Control::new();
+    c.cancel();
+    assert_eq!(
+        geodesic_fans(&s, &frames, field, &FanParams::default(), &c),
+        Err(FanError::Cancelled)
+    );
+    let p: FanParams = serde_json::from_str(r#"{"rings": 2}"#).unwrap();
+    assert_eq!(
+        p,
+        FanParams {
+            rings: 2,
+            ..Default::default()
+        }
+    );
+    let _ = PI;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Benchmark
+
+fn peak_rss_kib() -> u64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1).map(|v| v.parse().unwrap_or(0)))
+        })
+        .unwrap_or(0)
+}
+
+/// Geodesic fans R=3, A=18, RGB on a 64K-vertex icosphere. Run with
+/// `cargo test --release --no-default-features --test geodesic_fans -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn bench_geodesic_fans_64k() {
+    let s = icosphere(80);
+    let values: Vec<f32> = s
+        .positions
+        .iter()
+        .flat_map(|&p| bumpy_field(p.map(|c| 6.0 * c)))
+        .collect();
+    let threads = rayon::current_num_threads();
+    let mut frame_times = Vec::new();
+    let mut times = Vec::new();
+    let mut fans = Fans::default();
+    for _ in 0..5 {
+        let t0 = std::time::Instant::now();
+        let frames = frames_of(&s);
+        let t1 = std::time::Instant::now();
+        fans = geodesic_fans(
+            &s,
+            &frames,
+            FieldRef {
+                dim: 3,
+                values: &values,
+            },
+            &FanParams::default(),
+            &Control::new(),
+        )
+        .unwrap();
+        let t2 = std::time::Instant::now();
+        frame_times.push((t1 - t0).as_secs_f64());
+        times.push((t2 - t1).as_secs_f64());
+    }
+    times.sort_by(f64::total_cmp);
+    frame_times.sort_by(f64::total_cmp);
+    println!(
+        "geodesic fans R=3 A=18 RGB, {} vertices, {threads} threads: median {:.3} s (min {:.3}, max {:.3}); \
+         frames median {:.3} s; {} floats; VmHWM {} MiB",
+        s.vertex_count(),
+        times[2],
+        times[0],
+        times[4],
+        frame_times[2],
+        fans.data.len(),
+        peak_rss_kib() / 1024
+    );
+}
