@@ -247,7 +247,7 @@ impl ExpMap {
 
     /// Polar coordinates `(r, θ)` of a chart position: `r = |U|`, `θ = atan2(y, x)`.
     pub fn polar(xy: [f32; 2]) -> (f32, f32) {
-        (xy[0].hypot(xy[1]), xy[1].atan2(xy[0]))
+        ((xy[0] * xy[0] + xy[1] * xy[1]).sqrt(), xy[1].atan2(xy[0]))
     }
 }
 
@@ -277,7 +277,7 @@ pub fn exponential_map(
         });
     }
     let radius = world_radius(surface, params.radius, params.radius_unit);
-    let adjacency = Adjacency::new(surface);
+    let connection = Connection::new(surface, frames);
     let stage = control.stage("exponential map", nv as u64)?;
     let per_chunk: Vec<(Vec<u32>, Vec<[f32; 2]>, Vec<u32>)> = (0..nv)
         .into_par_iter()
@@ -289,10 +289,10 @@ pub fn exponential_map(
                 let mut coords = Vec::new();
                 let mut counts = Vec::with_capacity(sources.len());
                 for &s in &sources {
-                    let chart = builder.build(surface, &adjacency, frames, s, radius, params);
+                    let chart = builder.build(&connection, s, radius, params);
                     let mut count = 0u32;
                     for (v, u) in chart.vertex.iter().zip(chart.coords) {
-                        if u[0].hypot(u[1]) <= radius {
+                        if u[0] * u[0] + u[1] * u[1] <= radius * radius {
                             verts.push(*v);
                             coords.push(*u);
                             count += 1;
@@ -327,14 +327,26 @@ pub fn exponential_map(
 /// Sources per parallel work item (and per progress tick).
 pub(crate) const CHUNK: usize = 256;
 
-/// Vertex one-rings as CSR (neighbours ascending, each once), from the faces.
-pub(crate) struct Adjacency {
+/// Vertex one-rings as CSR (neighbours ascending, each once), from the faces, with the
+/// discrete connection the chart propagation needs, precomputed once per directed edge
+/// `r → q` in the frames of [`LocalFrames`] (complex numbers as `[re, im]`):
+/// - `edge`: the edge `q − r` projected into the tangent plane of `r`, rescaled to `|q − r|`,
+///   in `r`'s (tangent, bitangent) coordinates;
+/// - `transport`: `r`'s tangent carried into `q`'s tangent plane by the minimal rotation taking
+///   `n_r` to `n_q`, in `q`'s coordinates (a unit complex number).
+///
+/// A vector with complex coordinates `z` in `r`'s frame then has coordinates
+/// `transport · z` in `q`'s frame, so frame transport along the Dijkstra tree is a product of
+/// unit complex numbers.
+pub(crate) struct Connection {
     offsets: Vec<u32>,
     neighbors: Vec<u32>,
+    edge: Vec<[f32; 2]>,
+    transport: Vec<[f32; 2]>,
 }
 
-impl Adjacency {
-    pub(crate) fn new(surface: &Surface) -> Self {
+impl Connection {
+    pub(crate) fn new(surface: &Surface, frames: &LocalFrames) -> Self {
         let nv = surface.vertex_count();
         let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(surface.faces.len() * 6);
         for f in &surface.faces {
@@ -355,14 +367,38 @@ impl Adjacency {
         for v in 0..nv {
             offsets[v + 1] += offsets[v];
         }
-        Adjacency {
+        let (edge, transport): (Vec<[f32; 2]>, Vec<[f32; 2]>) = pairs
+            .par_iter()
+            .map(|&(r, q)| {
+                let (r, q) = (r as usize, q as usize);
+                let (n, t, b) = (frames.normal[r], frames.tangent[r], frames.bitangent[r]);
+                let d = sub(surface.positions[q], surface.positions[r]);
+                let len = norm(d);
+                let proj = sub(d, scale(n, dot(d, n)));
+                let pl = norm(proj);
+                let k = if pl > 1e-12 * len { len / pl } else { 0.0 };
+                let edge = [k * dot(proj, t), k * dot(proj, b)];
+                let tt = rotate_onto(t, n, frames.normal[q]);
+                let z = [dot(tt, frames.tangent[q]), dot(tt, frames.bitangent[q])];
+                let zl = (z[0] * z[0] + z[1] * z[1]).sqrt();
+                let transport = if zl > 1e-12 {
+                    [z[0] / zl, z[1] / zl]
+                } else {
+                    [1.0, 0.0]
+                };
+                (edge, transport)
+            })
+            .unzip();
+        Connection {
             offsets,
             neighbors: pairs.into_iter().map(|p| p.1).collect(),
+            edge,
+            transport,
         }
     }
 
-    fn of(&self, v: usize) -> &[u32] {
-        &self.neighbors[self.offsets[v] as usize..self.offsets[v + 1] as usize]
+    fn range(&self, v: usize) -> std::ops::Range<usize> {
+        self.offsets[v] as usize..self.offsets[v + 1] as usize
     }
 }
 
@@ -378,11 +414,10 @@ pub(crate) struct ChartBuilder {
     slot: Vec<u32>,
     vertex: Vec<u32>,
     coords: Vec<[f32; 2]>,
-    /// Transported first frame axis per local vertex (in that vertex's tangent plane).
-    axis: Vec<[f32; 3]>,
+    /// Per local vertex: the source's tangent transported to it, as a unit complex number in
+    /// the vertex's own frame.
+    axis: Vec<[f32; 2]>,
     done: Vec<bool>,
-    /// Finalized vertices in placement order (local slots).
-    order: Vec<u32>,
     order_vertex: Vec<u32>,
     order_coords: Vec<[f32; 2]>,
     heap: BinaryHeap<Reverse<(u32, u32)>>,
@@ -396,38 +431,26 @@ impl ChartBuilder {
             coords: Vec::new(),
             axis: Vec::new(),
             done: Vec::new(),
-            order: Vec::new(),
             order_vertex: Vec::new(),
             order_coords: Vec::new(),
             heap: BinaryHeap::new(),
         }
     }
 
-    /// Candidate chart position of `q` from the placed vertex with local slot `r`.
-    fn candidate(&self, surface: &Surface, frames: &LocalFrames, r: usize, q: usize) -> [f32; 2] {
-        let rv = self.vertex[r] as usize;
-        let n = frames.normal[rv];
-        let d = sub(surface.positions[q], surface.positions[rv]);
-        let len = norm(d);
-        let t = sub(d, scale(n, dot(d, n)));
-        let tl = norm(t);
-        if tl <= 1e-12 * len.max(1e-30) {
-            return self.coords[r];
-        }
-        let e1 = self.axis[r];
-        let e2 = cross(n, e1);
-        let k = len / tl;
+    /// Candidate chart position of the far end of directed edge `e` from the placed vertex
+    /// with local slot `r`: `U(r) + edge · conj(axis(r))`.
+    fn candidate(&self, connection: &Connection, r: usize, e: usize) -> [f32; 2] {
+        let [ex, ey] = connection.edge[e];
+        let [ax, ay] = self.axis[r];
         let u = self.coords[r];
-        [u[0] + k * dot(t, e1), u[1] + k * dot(t, e2)]
+        [u[0] + ex * ax + ey * ay, u[1] + ey * ax - ex * ay]
     }
 
     /// Builds the chart of `source` up to `radius` (world units): the finalized vertices, all
     /// with `|U| <= radius` (upwind averaging may move a vertex marginally past it).
     pub(crate) fn build(
         &mut self,
-        surface: &Surface,
-        adjacency: &Adjacency,
-        frames: &LocalFrames,
+        connection: &Connection,
         source: usize,
         radius: f32,
         params: &ExpMapParams,
@@ -439,7 +462,6 @@ impl ChartBuilder {
         self.coords.clear();
         self.axis.clear();
         self.done.clear();
-        self.order.clear();
         self.order_vertex.clear();
         self.order_coords.clear();
         self.heap.clear();
@@ -447,28 +469,28 @@ impl ChartBuilder {
         self.slot[source] = 0;
         self.vertex.push(source as u32);
         self.coords.push([0.0, 0.0]);
-        self.axis.push(frames.tangent[source]);
+        self.axis.push([1.0, 0.0]);
         self.done.push(false);
         self.heap.push(Reverse((0, 0)));
+        let radius2 = radius * radius;
         while let Some(Reverse((key, r))) = self.heap.pop() {
             let r = r as usize;
             if self.done[r] || key != dist_key(self.coords[r]) {
                 continue; // stale entry
             }
-            if f32::from_bits(key) > radius {
+            if f32::from_bits(key) > radius2 {
                 break;
             }
             let rv = self.vertex[r] as usize;
             if params.upwind_average && r != 0 {
-                self.average_upwind(surface, adjacency, frames, r);
+                self.average_upwind(connection, r);
             }
             self.done[r] = true;
-            self.order.push(r as u32);
             self.order_vertex.push(rv as u32);
             self.order_coords.push(self.coords[r]);
-            for &q in adjacency.of(rv) {
-                let q = q as usize;
-                let cand = self.candidate(surface, frames, r, q);
+            for e in connection.range(rv) {
+                let q = connection.neighbors[e] as usize;
+                let cand = self.candidate(connection, r, e);
                 let ck = dist_key(cand);
                 let qs = self.slot[q];
                 let qs = if qs == u32::MAX {
@@ -476,7 +498,7 @@ impl ChartBuilder {
                     self.slot[q] = s as u32;
                     self.vertex.push(q as u32);
                     self.coords.push(cand);
-                    self.axis.push([0.0; 3]);
+                    self.axis.push([1.0, 0.0]);
                     self.done.push(false);
                     s
                 } else {
@@ -487,7 +509,10 @@ impl ChartBuilder {
                     self.coords[s] = cand;
                     s
                 };
-                self.axis[qs] = transport(self.axis[r], frames.normal[rv], frames.normal[q]);
+                // Frame transport from the winning neighbour: axis(q) = transport(r→q)·axis(r).
+                let [tx, ty] = connection.transport[e];
+                let [ax, ay] = self.axis[r];
+                self.axis[qs] = [tx * ax - ty * ay, tx * ay + ty * ax];
                 self.heap.push(Reverse((ck, qs as u32)));
             }
         }
@@ -499,23 +524,22 @@ impl ChartBuilder {
 
     /// Replaces the position of local vertex `s` by the `1/|q - r|²`-weighted mean of the
     /// candidates from all finalized neighbours `r`.
-    fn average_upwind(
-        &mut self,
-        surface: &Surface,
-        adjacency: &Adjacency,
-        frames: &LocalFrames,
-        s: usize,
-    ) {
-        let q = self.vertex[s] as usize;
+    fn average_upwind(&mut self, connection: &Connection, s: usize) {
+        let q = self.vertex[s];
         let (mut wx, mut wy, mut ws) = (0.0f32, 0.0f32, 0.0f32);
-        for &r in adjacency.of(q) {
-            let rs = self.slot[r as usize];
+        for e in connection.range(q as usize) {
+            let r = connection.neighbors[e] as usize;
+            let rs = self.slot[r];
             if rs == u32::MAX || !self.done[rs as usize] {
                 continue;
             }
-            let d = sub(surface.positions[q], surface.positions[r as usize]);
-            let w = 1.0 / dot(d, d).max(1e-30);
-            let c = self.candidate(surface, frames, rs as usize, q);
+            // The directed edge r → q.
+            let Some(back) = connection.range(r).find(|&b| connection.neighbors[b] == q) else {
+                continue;
+            };
+            let [ex, ey] = connection.edge[back];
+            let w = 1.0 / (ex * ex + ey * ey).max(1e-30);
+            let c = self.candidate(connection, rs as usize, back);
             wx += w * c[0];
             wy += w * c[1];
             ws += w;
@@ -526,14 +550,16 @@ impl ChartBuilder {
     }
 }
 
-/// Heap key of a chart position: the bits of `|U|` (non-negative floats order like integers).
+/// Heap key of a chart position: the bits of `|U|²` (non-negative floats order like their
+/// bits, and `|U|²` orders like `|U|`).
 fn dist_key(u: [f32; 2]) -> u32 {
-    u[0].hypot(u[1]).to_bits()
+    (u[0] * u[0] + u[1] * u[1]).to_bits()
 }
 
 /// Carries the unit vector `v` (tangent at a vertex with normal `from`) into the tangent plane
-/// of normal `to` by the minimal rotation taking `from` to `to`; renormalized.
-fn transport(v: [f32; 3], from: [f32; 3], to: [f32; 3]) -> [f32; 3] {
+/// of normal `to` by the minimal rotation taking `from` to `to`; renormalized. For opposite
+/// normals (no unique minimal rotation) `v` is projected into the target plane.
+fn rotate_onto(v: [f32; 3], from: [f32; 3], to: [f32; 3]) -> [f32; 3] {
     let c = dot(from, to);
     let out = if c > -0.99 {
         // Rodrigues with k = from × to (|k| = sin): R v = v c + k × v + k (k·v) / (1 + c).

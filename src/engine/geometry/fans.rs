@@ -31,7 +31,7 @@
 use super::super::control::{Cancelled, Control};
 use super::super::mesh::surface::Surface;
 use super::expmap::{
-    world_radius, Adjacency, ChartBuilder, ExpMapParams, LocalFrames, RadiusUnit, CHUNK,
+    world_radius, ChartBuilder, Connection, ExpMapParams, LocalFrames, RadiusUnit, CHUNK,
 };
 use rayon::prelude::*;
 
@@ -299,7 +299,7 @@ pub fn geodesic_fans(
         .flat_map(|i| (0..params.spokes).map(move |j| shape.sample_position(radius, i, j)))
         .collect();
     let area = lumped_areas(surface);
-    let adjacency = Adjacency::new(surface);
+    let connection = Connection::new(surface, frames);
     let stage = control.stage("geodesic fans", nv as u64)?;
     let mut data = vec![0.0f32; nv * shape.len()];
     let kernel = Kernel {
@@ -311,28 +311,27 @@ pub fn geodesic_fans(
     data.par_chunks_mut(CHUNK * shape.len().max(1))
         .enumerate()
         .try_for_each_init(
-            || (ChartBuilder::new(nv), vec![0.0f64; 3 * field.dim]),
-            |(builder, acc), (chunk, out)| {
+            || (ChartBuilder::new(nv), Scratch::new(field.dim)),
+            |(builder, scratch), (chunk, out)| {
                 for (i, fan) in out.chunks_exact_mut(shape.len()).enumerate() {
                     let s = chunk * CHUNK + i;
-                    let chart = builder.build(
-                        surface,
-                        &adjacency,
-                        frames,
-                        s,
-                        radius + reach,
-                        &chart_params,
-                    );
-                    for (sample, value) in samples.iter().zip(fan.chunks_exact_mut(field.dim)) {
-                        kernel.estimate(
-                            *sample,
-                            chart.vertex,
-                            chart.coords,
-                            &area,
-                            field,
-                            acc,
-                            value,
-                        );
+                    let chart = builder.build(&connection, s, radius + reach, &chart_params);
+                    let ring_len = shape.spokes * shape.dim;
+                    for (ring, ring_out) in fan.chunks_exact_mut(ring_len).enumerate() {
+                        // Only chart vertices with | |U| − ρ | <= reach can be within reach of
+                        // a sample on ring ρ.
+                        let rho = (ring + 1) as f32 * radius / shape.rings as f32;
+                        scratch.band(chart.vertex, chart.coords, &area, rho, reach);
+                        let ring_samples = &samples[ring * shape.spokes..(ring + 1) * shape.spokes];
+                        for (sample, value) in ring_samples
+                            .iter()
+                            .zip(ring_out.chunks_exact_mut(field.dim))
+                        {
+                            kernel.estimate(*sample, scratch, field, value);
+                            if scratch.fallback {
+                                nearest_value(*sample, chart.vertex, chart.coords, field, value);
+                            }
+                        }
                     }
                 }
                 stage.tick((out.len() / shape.len().max(1)) as u64)
@@ -410,47 +409,104 @@ struct Kernel {
     filter: FanFilter,
 }
 
+/// Per-thread scratch: the chart vertices of one ring's band, structure-of-arrays.
+struct Scratch {
+    x: Vec<f32>,
+    y: Vec<f32>,
+    vertex: Vec<u32>,
+    area: Vec<f32>,
+    d2: Vec<f32>,
+    /// `3 * dim` accumulators.
+    acc: Vec<f64>,
+    /// Set by [`Kernel::estimate`] when no neighbour was in reach.
+    fallback: bool,
+}
+
+impl Scratch {
+    fn new(dim: usize) -> Self {
+        Scratch {
+            x: Vec::new(),
+            y: Vec::new(),
+            vertex: Vec::new(),
+            area: Vec::new(),
+            d2: Vec::new(),
+            acc: vec![0.0; 3 * dim],
+            fallback: false,
+        }
+    }
+
+    /// Keeps the chart vertices whose radius is within `reach` of `rho`.
+    fn band(&mut self, vertex: &[u32], coords: &[[f32; 2]], area: &[f32], rho: f32, reach: f32) {
+        self.x.clear();
+        self.y.clear();
+        self.vertex.clear();
+        self.area.clear();
+        let (lo, hi) = ((rho - reach).max(0.0), rho + reach);
+        let (lo2, hi2) = (lo * lo, hi * hi);
+        for (&v, u) in vertex.iter().zip(coords) {
+            let r2 = u[0] * u[0] + u[1] * u[1];
+            if r2 >= lo2 && r2 <= hi2 {
+                self.x.push(u[0]);
+                self.y.push(u[1]);
+                self.vertex.push(v);
+                self.area.push(area[v as usize]);
+            }
+        }
+        self.d2.resize(self.x.len(), 0.0);
+    }
+}
+
+/// Writes the field value of the chart vertex nearest to `s` into `value`.
+fn nearest_value(
+    s: [f32; 2],
+    vertex: &[u32],
+    coords: &[[f32; 2]],
+    field: FieldRef<'_>,
+    value: &mut [f32],
+) {
+    let mut nearest = (f32::INFINITY, vertex[0] as usize);
+    for (&v, u) in vertex.iter().zip(coords) {
+        let d2 = (u[0] - s[0]).powi(2) + (u[1] - s[1]).powi(2);
+        if d2 < nearest.0 {
+            nearest = (d2, v as usize);
+        }
+    }
+    let dim = field.dim;
+    value.copy_from_slice(&field.values[nearest.1 * dim..(nearest.1 + 1) * dim]);
+}
+
 impl Kernel {
-    /// Writes the filtered field at chart position `s` into `value` (`dim` floats).
-    /// `acc` is scratch of `3 * dim` floats.
-    #[allow(clippy::too_many_arguments)]
-    fn estimate(
-        &self,
-        s: [f32; 2],
-        vertex: &[u32],
-        coords: &[[f32; 2]],
-        area: &[f32],
-        field: FieldRef<'_>,
-        acc: &mut [f64],
-        value: &mut [f32],
-    ) {
+    /// Writes the filtered field at chart position `s` over the band in `scratch` into `value`
+    /// (`dim` floats), or sets `scratch.fallback` when no band vertex is in reach.
+    fn estimate(&self, s: [f32; 2], scratch: &mut Scratch, field: FieldRef<'_>, value: &mut [f32]) {
         let dim = field.dim;
+        // Pass 1 (vectorizes): squared chart distances to the sample.
+        for ((d2, x), y) in scratch.d2.iter_mut().zip(&scratch.x).zip(&scratch.y) {
+            let (dx, dy) = (x - s[0], y - s[1]);
+            *d2 = dx * dx + dy * dy;
+        }
+        // Pass 2: weights and moments of the vertices in reach.
+        let acc = &mut scratch.acc;
         acc.fill(0.0);
         let (mut s0, mut sx, mut sy, mut sxx, mut sxy, mut syy) = (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0);
         let mut gauss_sum = 0.0f32;
-        let mut nearest = (f32::INFINITY, 0usize);
-        for (&v, u) in vertex.iter().zip(coords) {
-            let dx = u[0] - s[0];
-            let dy = u[1] - s[1];
-            let d2 = dx * dx + dy * dy;
-            if d2 < nearest.0 {
-                nearest = (d2, v as usize);
-            }
+        for (k, &d2) in scratch.d2.iter().enumerate() {
             if d2 > self.reach2 {
                 continue;
             }
             let g = (-d2 * self.inv_two_sigma2).exp();
             gauss_sum += g;
-            let w = (g * area[v as usize]) as f64;
-            let x = (dx * self.inv_sigma) as f64;
-            let y = (dy * self.inv_sigma) as f64;
+            let w = (g * scratch.area[k]) as f64;
+            let x = ((scratch.x[k] - s[0]) * self.inv_sigma) as f64;
+            let y = ((scratch.y[k] - s[1]) * self.inv_sigma) as f64;
             s0 += w;
             sx += w * x;
             sy += w * y;
             sxx += w * x * x;
             sxy += w * x * y;
             syy += w * y * y;
-            let f = &field.values[v as usize * dim..(v as usize + 1) * dim];
+            let v = scratch.vertex[k] as usize;
+            let f = &field.values[v * dim..(v + 1) * dim];
             for c in 0..dim {
                 let wf = w * f[c] as f64;
                 acc[c] += wf;
@@ -458,9 +514,8 @@ impl Kernel {
                 acc[2 * dim + c] += wf * y;
             }
         }
-        if gauss_sum < 1e-4 || s0 <= 0.0 {
-            let v = nearest.1;
-            value.copy_from_slice(&field.values[v * dim..(v + 1) * dim]);
+        scratch.fallback = gauss_sum < 1e-4 || s0 <= 0.0;
+        if scratch.fallback {
             return;
         }
         if self.filter == FanFilter::LocalLinear {
