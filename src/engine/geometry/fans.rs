@@ -416,6 +416,8 @@ struct Scratch {
     vertex: Vec<u32>,
     area: Vec<f32>,
     d2: Vec<f32>,
+    /// Indices (into the band) of the vertices within reach of the current sample.
+    near: Vec<u32>,
     /// `3 * dim` accumulators.
     acc: Vec<f64>,
     /// Set by [`Kernel::estimate`] when no neighbour was in reach.
@@ -430,6 +432,7 @@ impl Scratch {
             vertex: Vec::new(),
             area: Vec::new(),
             d2: Vec::new(),
+            near: Vec::new(),
             acc: vec![0.0; 3 * dim],
             fallback: false,
         }
@@ -453,6 +456,7 @@ impl Scratch {
             }
         }
         self.d2.resize(self.x.len(), 0.0);
+        self.near.resize(self.x.len() + 1, 0);
     }
 }
 
@@ -485,15 +489,20 @@ impl Kernel {
             let (dx, dy) = (x - s[0], y - s[1]);
             *d2 = dx * dx + dy * dy;
         }
+        // Branch-free compaction of the band vertices within reach.
+        let mut n = 0;
+        for (k, &d2) in scratch.d2.iter().enumerate() {
+            scratch.near[n] = k as u32;
+            n += (d2 <= self.reach2) as usize;
+        }
         // Pass 2: weights and moments of the vertices in reach.
         let acc = &mut scratch.acc;
         acc.fill(0.0);
         let (mut s0, mut sx, mut sy, mut sxx, mut sxy, mut syy) = (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0);
         let mut gauss_sum = 0.0f32;
-        for (k, &d2) in scratch.d2.iter().enumerate() {
-            if d2 > self.reach2 {
-                continue;
-            }
+        for &k in &scratch.near[..n] {
+            let k = k as usize;
+            let d2 = scratch.d2[k];
             let g = (-d2 * self.inv_two_sigma2).exp();
             gauss_sum += g;
             let w = (g * scratch.area[k]) as f64;
