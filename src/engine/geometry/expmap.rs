@@ -23,6 +23,7 @@
 
 use super::super::control::{Cancelled, Control};
 use super::super::mesh::surface::Surface;
+use glam::Vec3;
 use rayon::prelude::*;
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -77,16 +78,12 @@ pub fn mean_edge_length(surface: &Surface) -> f32 {
     if surface.faces.is_empty() {
         return 0.0;
     }
-    let sum: f64 = surface
-        .faces
-        .par_iter()
+    // Sequential sum: a parallel float reduction would depend on the thread count.
+    let p = |v: u32| Vec3::from(surface.positions[v as usize]);
+    let sum: f64 = (surface.faces.iter())
         .map(|f| {
             (0..3)
-                .map(|i| {
-                    let a = surface.positions[f[i] as usize];
-                    let b = surface.positions[f[(i + 1) % 3] as usize];
-                    norm(sub(b, a)) as f64
-                })
+                .map(|i| p(f[i]).distance(p(f[(i + 1) % 3])) as f64)
                 .sum::<f64>()
         })
         .sum();
@@ -162,40 +159,32 @@ pub fn local_frames(surface: &Surface, params: &FrameParams) -> LocalFrames {
         bitangent: Vec::with_capacity(nv),
     };
     for v in 0..nv {
-        let mut n = normals[v];
-        if norm(n) < 0.5 {
-            n = [0.0, 0.0, 1.0];
+        let mut n = Vec3::from(normals[v]);
+        if n.length() < 0.5 {
+            n = Vec3::Z;
         }
-        let project = |d: [f32; 3]| sub(d, scale(n, dot(d, n)));
-        let mut t = [0.0; 3];
-        if let Some(up) = params.up {
+        let project = |d: Vec3| d - n * d.dot(n);
+        let mut t = Vec3::ZERO;
+        if let Some(up) = params.up.map(Vec3::from) {
             let p = project(up);
-            if norm(p) >= params.min_up_projection * norm(up) && norm(p) > 0.0 {
+            if p.length() >= params.min_up_projection * up.length() && p.length() > 0.0 {
                 t = p;
             }
         }
-        if norm(t) == 0.0 && first_next[v] != u32::MAX {
-            let d = sub(
-                surface.positions[first_next[v] as usize],
-                surface.positions[v],
-            );
-            let p = project(d);
-            if norm(p) > 1e-6 * norm(d) {
-                t = p;
+        if t == Vec3::ZERO && first_next[v] != u32::MAX {
+            let d = Vec3::from(surface.positions[first_next[v] as usize])
+                - Vec3::from(surface.positions[v]);
+            if project(d).length() > 1e-6 * d.length() {
+                t = project(d);
             }
         }
-        if norm(t) == 0.0 {
-            let axis = if n[0].abs() < 0.9 {
-                [1.0, 0.0, 0.0]
-            } else {
-                [0.0, 1.0, 0.0]
-            };
-            t = project(axis);
+        if t == Vec3::ZERO {
+            t = project(if n.x.abs() < 0.9 { Vec3::X } else { Vec3::Y });
         }
-        let t = normalize(t);
-        out.normal.push(n);
-        out.tangent.push(t);
-        out.bitangent.push(cross(n, t));
+        let t = t.normalize();
+        out.normal.push(n.into());
+        out.tangent.push(t.into());
+        out.bitangent.push(n.cross(t).into());
     }
     out
 }
@@ -371,15 +360,22 @@ impl Connection {
             .par_iter()
             .map(|&(r, q)| {
                 let (r, q) = (r as usize, q as usize);
-                let (n, t, b) = (frames.normal[r], frames.tangent[r], frames.bitangent[r]);
-                let d = sub(surface.positions[q], surface.positions[r]);
-                let len = norm(d);
-                let proj = sub(d, scale(n, dot(d, n)));
-                let pl = norm(proj);
+                let f = |a: &[[f32; 3]], v: usize| Vec3::from(a[v]);
+                let (n, t, b) = (
+                    f(&frames.normal, r),
+                    f(&frames.tangent, r),
+                    f(&frames.bitangent, r),
+                );
+                let d = f(&surface.positions, q) - f(&surface.positions, r);
+                let proj = d - n * d.dot(n);
+                let (len, pl) = (d.length(), proj.length());
                 let k = if pl > 1e-12 * len { len / pl } else { 0.0 };
-                let edge = [k * dot(proj, t), k * dot(proj, b)];
-                let tt = rotate_onto(t, n, frames.normal[q]);
-                let z = [dot(tt, frames.tangent[q]), dot(tt, frames.bitangent[q])];
+                let edge = [k * proj.dot(t), k * proj.dot(b)];
+                let tt = rotate_onto(t, n, f(&frames.normal, q));
+                let z = [
+                    tt.dot(f(&frames.tangent, q)),
+                    tt.dot(f(&frames.bitangent, q)),
+                ];
                 let zl = (z[0] * z[0] + z[1] * z[1]).sqrt();
                 let transport = if zl > 1e-12 {
                     [z[0] / zl, z[1] / zl]
@@ -559,59 +555,14 @@ fn dist_key(u: [f32; 2]) -> u32 {
 /// Carries the unit vector `v` (tangent at a vertex with normal `from`) into the tangent plane
 /// of normal `to` by the minimal rotation taking `from` to `to`; renormalized. For opposite
 /// normals (no unique minimal rotation) `v` is projected into the target plane.
-fn rotate_onto(v: [f32; 3], from: [f32; 3], to: [f32; 3]) -> [f32; 3] {
-    let c = dot(from, to);
+fn rotate_onto(v: Vec3, from: Vec3, to: Vec3) -> Vec3 {
+    let c = from.dot(to);
     let out = if c > -0.99 {
         // Rodrigues with k = from × to (|k| = sin): R v = v c + k × v + k (k·v) / (1 + c).
-        let k = cross(from, to);
-        let kv = dot(k, v) / (1.0 + c);
-        let kx = cross(k, v);
-        [
-            v[0] * c + kx[0] + k[0] * kv,
-            v[1] * c + kx[1] + k[1] * kv,
-            v[2] * c + kx[2] + k[2] * kv,
-        ]
+        let k = from.cross(to);
+        v * c + k.cross(v) + k * (k.dot(v) / (1.0 + c))
     } else {
         v
     };
-    let p = sub(out, scale(to, dot(out, to)));
-    let l = norm(p);
-    if l > 1e-12 {
-        scale(p, 1.0 / l)
-    } else {
-        out
-    }
-}
-
-pub(crate) fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-pub(crate) fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-pub(crate) fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-pub(crate) fn scale(a: [f32; 3], s: f32) -> [f32; 3] {
-    [a[0] * s, a[1] * s, a[2] * s]
-}
-
-pub(crate) fn norm(a: [f32; 3]) -> f32 {
-    dot(a, a).sqrt()
-}
-
-fn normalize(a: [f32; 3]) -> [f32; 3] {
-    let l = norm(a);
-    if l > 0.0 {
-        scale(a, 1.0 / l)
-    } else {
-        a
-    }
+    (out - to * out.dot(to)).try_normalize().unwrap_or(out)
 }
