@@ -12,7 +12,7 @@ use retex::engine::geometry::fans::{
 };
 use retex::engine::mesh::surface::Surface;
 use std::collections::HashMap;
-use std::f32::consts::{PI, TAU};
+use std::f32::consts::TAU;
 
 // ---------------------------------------------------------------------------------------------
 // Fixtures
@@ -22,41 +22,18 @@ use std::f32::consts::{PI, TAU};
 /// they are welded exactly.
 fn icosphere(n: u32) -> Surface {
     let t = (1.0 + 5f64.sqrt()) / 2.0;
+    #[rustfmt::skip]
     let corners: [[f64; 3]; 12] = [
-        [-1.0, t, 0.0],
-        [1.0, t, 0.0],
-        [-1.0, -t, 0.0],
-        [1.0, -t, 0.0],
-        [0.0, -1.0, t],
-        [0.0, 1.0, t],
-        [0.0, -1.0, -t],
-        [0.0, 1.0, -t],
-        [t, 0.0, -1.0],
-        [t, 0.0, 1.0],
-        [-t, 0.0, -1.0],
-        [-t, 0.0, 1.0],
+        [-1.0, t, 0.0], [1.0, t, 0.0], [-1.0, -t, 0.0], [1.0, -t, 0.0],
+        [0.0, -1.0, t], [0.0, 1.0, t], [0.0, -1.0, -t], [0.0, 1.0, -t],
+        [t, 0.0, -1.0], [t, 0.0, 1.0], [-t, 0.0, -1.0], [-t, 0.0, 1.0],
     ];
+    #[rustfmt::skip]
     let ico: [[u32; 3]; 20] = [
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
+        [0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11],
+        [1, 5, 9], [5, 11, 4], [11, 10, 2], [10, 7, 6], [7, 1, 8],
+        [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9],
+        [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1],
     ];
     let mut index: HashMap<Vec<(u32, u32)>, u32> = HashMap::new();
     let mut positions = Vec::new();
@@ -159,6 +136,11 @@ fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
+fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
+    let d = sub(a, b);
+    dot(d, d).sqrt()
+}
+
 fn angle_diff(a: f32, b: f32) -> f32 {
     let d = (a - b).rem_euclid(TAU);
     d.min(TAU - d)
@@ -167,6 +149,19 @@ fn angle_diff(a: f32, b: f32) -> f32 {
 fn frames_of(s: &Surface) -> LocalFrames {
     local_frames(s, &FrameParams::default())
 }
+
+/// Fans of an RGB field (3 floats per vertex).
+fn rgb_fans(s: &Surface, frames: &LocalFrames, values: &[f32], params: &FanParams) -> Fans {
+    let field = FieldRef { dim: 3, values };
+    geodesic_fans(s, frames, field, params, &Control::new()).unwrap()
+}
+
+/// The MeshMatch fan shape for RGB: 3 rings, 18 spokes.
+const SHAPE: FanShape = FanShape {
+    rings: 3,
+    spokes: 18,
+    dim: 3,
+};
 
 // ---------------------------------------------------------------------------------------------
 // Exponential map
@@ -191,7 +186,7 @@ fn expmap_on_plane_reproduces_polar_coordinates() {
         for (&q, &xy) in verts.iter().zip(coords) {
             let d = sub(s.positions[q as usize], c);
             let (r, theta) = ExpMap::polar(xy);
-            let r_true = dot(d, d).sqrt();
+            let r_true = dist(s.positions[q as usize], c);
             assert!(
                 (r - r_true).abs() < 0.01 * map.radius,
                 "source {p} vertex {q}: r {r} vs {r_true}"
@@ -207,15 +202,11 @@ fn expmap_on_plane_reproduces_polar_coordinates() {
         }
         if inside {
             // Complete: every vertex within 99% of the radius is in the chart.
-            let want = (0..s.vertex_count())
-                .filter(|&q| {
-                    let d = sub(s.positions[q], c);
-                    dot(d, d).sqrt() < 0.99 * map.radius
-                })
-                .count();
+            let near = |r: f32| r < 0.99 * map.radius;
+            let want = s.positions.iter().filter(|&&q| near(dist(q, c))).count();
             let have = coords
                 .iter()
-                .filter(|xy| ExpMap::polar(**xy).0 < 0.99 * map.radius)
+                .filter(|xy| near(ExpMap::polar(**xy).0))
                 .count();
             assert_eq!(have, want, "source {p}");
         }
@@ -224,7 +215,8 @@ fn expmap_on_plane_reproduces_polar_coordinates() {
 }
 
 /// Mean relative error of chart radius against great-circle distance and of the angle against
-/// the analytic logarithm map, over all (source, vertex) pairs with `r > 2 * min_r`.
+/// the analytic logarithm map, over all (source, vertex) pairs at least 10% of the radius
+/// apart; and the worst relative radius error.
 fn sphere_errors(s: &Surface, frames: &LocalFrames, map: &ExpMap) -> (f64, f64, f32) {
     let (mut rel, mut ang, mut count) = (0.0f64, 0.0f64, 0usize);
     let mut worst = 0.0f32;
@@ -289,10 +281,7 @@ fn expmap_rejects_bad_input_and_honours_cancellation() {
     let short = LocalFrames::default();
     assert!(matches!(
         exponential_map(&s, &short, &ExpMapParams::default(), &Control::new()),
-        Err(ExpMapError::FrameCount {
-            expected: 81,
-            got: 0
-        })
+        Err(ExpMapError::FrameCount { got: 0, .. })
     ));
     let c = Control::new();
     c.cancel();
@@ -306,13 +295,11 @@ fn expmap_rejects_bad_input_and_honours_cancellation() {
 fn frames_are_orthonormal_and_follow_up_where_defined() {
     let s = icosphere(8);
     let up = [0.0, 0.0, 1.0];
-    let frames = local_frames(
-        &s,
-        &FrameParams {
-            up: Some(up),
-            ..Default::default()
-        },
-    );
+    let params = FrameParams {
+        up: Some(up),
+        min_up_projection: 0.1,
+    };
+    let frames = local_frames(&s, &params);
     for v in 0..s.vertex_count() {
         let (n, t, b) = (frames.normal[v], frames.tangent[v], frames.bitangent[v]);
         for (x, y) in [(n, t), (n, b), (t, b)] {
@@ -333,15 +320,9 @@ fn frames_are_orthonormal_and_follow_up_where_defined() {
 // Fans
 
 /// Three linear channels on the plane.
-fn linear_field(s: &Surface) -> Vec<f32> {
-    let lin = |p: [f32; 3]| {
-        [
-            2.0 * p[0] - 3.0 * p[1] + 1.0,
-            0.5 * p[0] + p[1],
-            -p[0] + 0.25,
-        ]
-    };
-    s.positions.iter().flat_map(|&p| lin(p)).collect()
+#[rustfmt::skip]
+fn lin(p: [f32; 3]) -> [f32; 3] {
+    [2.0 * p[0] - 3.0 * p[1] + 1.0, 0.5 * p[0] + p[1], -p[0] + 0.25]
 }
 
 /// Max |fan − analytic| over fans whose samples (plus the filter reach when `full_support`)
@@ -352,13 +333,6 @@ fn linear_fan_error(
     fans: &Fans,
     full_support: bool,
 ) -> (f32, usize) {
-    let lin = |p: [f32; 3]| {
-        [
-            2.0 * p[0] - 3.0 * p[1] + 1.0,
-            0.5 * p[0] + p[1],
-            -p[0] + 0.25,
-        ]
-    };
     let shape = fans.shape();
     let margin = fans.radius + if full_support { 3.0 * fans.sigma } else { 0.0 };
     let (mut worst, mut count) = (0.0f32, 0);
@@ -391,7 +365,7 @@ fn linear_fan_error(
 fn fans_of_linear_field_on_plane_match_analytic_samples() {
     let s = plane_grid(60, 0.3);
     let frames = frames_of(&s);
-    let field = linear_field(&s);
+    let field: Vec<f32> = s.positions.iter().flat_map(|&p| lin(p)).collect();
     let field = FieldRef {
         dim: 3,
         values: &field,
@@ -447,25 +421,11 @@ fn best_rotation_recovers_field_rotation_about_vertex() {
             .iter()
             .flat_map(|p| bumpy_field([c * p[0] + si * p[1], -si * p[0] + c * p[1], 0.0]))
             .collect();
-        let fans = geodesic_fans(
-            &s,
-            &frames,
-            FieldRef {
-                dim: 3,
-                values: &values,
-            },
-            &params,
-            &Control::new(),
-        )
-        .unwrap();
+        let fans = rgb_fans(&s, &frames, &values, &params);
         fans.fan(0).to_vec()
     };
     let base = fan_of(0.0);
-    let shape = FanShape {
-        rings: 3,
-        spokes: 18,
-        dim: 3,
-    };
+    let shape = SHAPE;
     for k in 0..18 {
         let rotated = fan_of(k as f32 * TAU / 18.0);
         let (best, d) = shape.best_rotation(&base, &rotated);
@@ -481,11 +441,7 @@ fn best_rotation_recovers_field_rotation_about_vertex() {
 /// A synthetic fan cyclically shifted by k spokes: distance 0 at k, best rotation k.
 #[test]
 fn best_rotation_recovers_cyclic_shift_of_synthetic_fan() {
-    let shape = FanShape {
-        rings: 3,
-        spokes: 18,
-        dim: 3,
-    };
+    let shape = SHAPE;
     let a: Vec<f32> = (0..shape.len() as u32).map(jitter).collect();
     for k in 0..18 {
         let mut b = vec![0.0f32; shape.len()];
@@ -523,17 +479,7 @@ fn fans_are_identical_with_one_and_two_threads() {
         pool.install(|| {
             let map =
                 exponential_map(&s, &frames, &ExpMapParams::default(), &Control::new()).unwrap();
-            let fans = geodesic_fans(
-                &s,
-                &frames,
-                FieldRef {
-                    dim: 3,
-                    values: &values,
-                },
-                &FanParams::default(),
-                &Control::new(),
-            )
-            .unwrap();
+            let fans = rgb_fans(&s, &frames, &values, &FanParams::default());
             (map, fans)
         })
     };
@@ -556,11 +502,7 @@ fn fans_reject_bad_input_and_honour_cancellation() {
     };
     assert!(matches!(
         geodesic_fans(&s, &frames, field, &FanParams::default(), &Control::new()),
-        Err(FanError::LengthMismatch {
-            what: "field",
-            expected: 243,
-            got: 80
-        })
+        Err(FanError::LengthMismatch { got: 80, .. })
     ));
     let field = FieldRef {
         dim: 3,
@@ -575,6 +517,11 @@ fn fans_reject_bad_input_and_honour_cancellation() {
         Err(FanError::InvalidParam { name: "rings", .. })
     ));
     let c = Control::new();
+    geodesic_fans(&s, &frames, field, &FanParams::default(), &c).unwrap();
+    let progress = c.progress();
+    assert_eq!(progress.stage, "geodesic fans");
+    assert_eq!(progress.stage_fraction, 1.0);
+    let c = Control::new();
     c.cancel();
     assert_eq!(
         geodesic_fans(&s, &frames, field, &FanParams::default(), &c),
@@ -582,40 +529,33 @@ fn fans_reject_bad_input_and_honour_cancellation() {
     );
     let p: FanParams = serde_json::from_str(r#"{"rings": 2}"#).unwrap();
     assert_eq!(
-        p,
-        FanParams {
-            rings: 2,
-            ..Default::default()
-        }
+        (p.rings, p.spokes, p.filter),
+        (2, 18, FanFilter::LocalLinear)
     );
-    let _ = PI;
 }
 
 // ---------------------------------------------------------------------------------------------
 // Benchmark
 
-fn peak_rss_kib() -> u64 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("VmHWM:"))
-                .and_then(|l| l.split_whitespace().nth(1).map(|v| v.parse().unwrap_or(0)))
-        })
-        .unwrap_or(0)
+/// Field `index` (0-based, after the pid) of a `/proc/self/<file>` line starting with `key`
+/// (`key` empty: the single line of `stat`, fields after the command name).
+fn proc_field(file: &str, key: &str, index: usize) -> f64 {
+    let text = std::fs::read_to_string(format!("/proc/self/{file}")).unwrap_or_default();
+    let line = text.lines().find(|l| l.starts_with(key)).unwrap_or("");
+    let rest = if key.is_empty() {
+        &line[line.rfind(')').map_or(0, |i| i + 1)..]
+    } else {
+        line
+    };
+    rest.split_whitespace()
+        .nth(index)
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0.0)
 }
 
-/// CPU seconds (user + system, all threads) used by this process so far, from
-/// `/proc/self/stat` (clock ticks assumed 100 Hz, the Linux default).
+/// CPU seconds (user + system, all threads) used so far; clock ticks assumed 100 Hz.
 fn cpu_seconds() -> f64 {
-    std::fs::read_to_string("/proc/self/stat")
-        .ok()
-        .and_then(|s| {
-            let rest = &s[s.rfind(')')? + 2..];
-            let f: Vec<&str> = rest.split_whitespace().collect();
-            Some((f[11].parse::<f64>().ok()? + f[12].parse::<f64>().ok()?) / 100.0)
-        })
-        .unwrap_or(0.0)
+    (proc_field("stat", "", 11) + proc_field("stat", "", 12)) / 100.0
 }
 
 /// Geodesic fans R=3, A=18, RGB on a 64K-vertex icosphere. Run with
@@ -630,26 +570,14 @@ fn bench_geodesic_fans_64k() {
         .flat_map(|&p| bumpy_field(p.map(|c| 6.0 * c)))
         .collect();
     let threads = rayon::current_num_threads();
-    let mut frame_times = Vec::new();
-    let mut times = Vec::new();
-    let mut cpu = Vec::new();
+    let (mut frame_times, mut times, mut cpu) = (Vec::new(), Vec::new(), Vec::new());
     let mut fans = Fans::default();
     for _ in 0..7 {
         let t0 = std::time::Instant::now();
         let frames = frames_of(&s);
         let t1 = std::time::Instant::now();
         let c1 = cpu_seconds();
-        fans = geodesic_fans(
-            &s,
-            &frames,
-            FieldRef {
-                dim: 3,
-                values: &values,
-            },
-            &FanParams::default(),
-            &Control::new(),
-        )
-        .unwrap();
+        fans = rgb_fans(&s, &frames, &values, &FanParams::default());
         let t2 = std::time::Instant::now();
         cpu.push(cpu_seconds() - c1);
         frame_times.push((t1 - t0).as_secs_f64());
@@ -661,7 +589,7 @@ fn bench_geodesic_fans_64k() {
     println!(
         "geodesic fans R=3 A=18 RGB, {} vertices, {threads} threads, 7 runs: wall median {:.3} s \
          (min {:.3}, max {:.3}); CPU (all threads) median {:.2} s; frames median {:.3} s; \
-         {} floats; VmHWM {} MiB",
+         {} floats; VmHWM {:.0} MiB",
         s.vertex_count(),
         times[3],
         times[0],
@@ -669,6 +597,6 @@ fn bench_geodesic_fans_64k() {
         cpu[3],
         frame_times[3],
         fans.data.len(),
-        peak_rss_kib() / 1024
+        proc_field("status", "VmHWM:", 1) / 1024.0
     );
 }
