@@ -14,7 +14,6 @@ use retex::engine::mesh::surface::Surface;
 use std::collections::HashMap;
 use std::f32::consts::TAU;
 
-// ---------------------------------------------------------------------------------------------
 // Fixtures
 
 /// Geodesic icosphere of frequency `n` on the unit sphere: `10 n² + 2` vertices. Points on shared
@@ -163,7 +162,6 @@ const SHAPE: FanShape = FanShape {
     dim: 3,
 };
 
-// ---------------------------------------------------------------------------------------------
 // Exponential map
 
 /// On a plane the chart of every vertex is its planar polar coordinates in its own frame.
@@ -316,7 +314,6 @@ fn frames_are_orthonormal_and_follow_up_where_defined() {
     }
 }
 
-// ---------------------------------------------------------------------------------------------
 // Fans
 
 /// Three linear channels on the plane.
@@ -534,7 +531,6 @@ fn fans_reject_bad_input_and_honour_cancellation() {
     );
 }
 
-// ---------------------------------------------------------------------------------------------
 // Benchmark
 
 /// Field `index` (0-based, after the pid) of a `/proc/self/<file>` line starting with `key`
