@@ -288,8 +288,9 @@ pub fn exponential_map(
                         }
                     }
                     counts.push(count);
+                    // Per source: a chart can be large when the radius is.
+                    stage.tick(1)?;
                 }
-                stage.tick(sources.len() as u64)?;
                 Ok((verts, coords, counts))
             },
         )
@@ -488,6 +489,9 @@ impl ChartBuilder {
                 let q = connection.neighbors[e] as usize;
                 let cand = self.candidate(connection, r, e);
                 let ck = dist_key(cand);
+                if f32::from_bits(ck) > radius2 {
+                    continue; // would never be finalized
+                }
                 let qs = self.slot[q];
                 let qs = if qs == u32::MAX {
                     let s = self.vertex.len();

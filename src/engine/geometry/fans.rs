@@ -333,8 +333,10 @@ pub fn geodesic_fans(
                             }
                         }
                     }
+                    // Per source: a chart can be large when the radius is.
+                    stage.tick(1)?;
                 }
-                stage.tick((out.len() / shape.len().max(1)) as u64)
+                Ok::<(), Cancelled>(())
             },
         )?;
     Ok(Fans {
