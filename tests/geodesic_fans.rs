@@ -438,8 +438,8 @@ fn best_rotation_recovers_field_rotation_on_symmetric_disk() {
     }
 }
 
-/// On an (unsymmetric) icosphere, rotating the field about a vertex's normal still yields
-/// the matching spoke shift: the fan is resampled, so the match is approximate.
+/// On an icosphere (no symmetry), a field rotated about a vertex's normal gives the matching
+/// spoke shift up to resampling (measured best / next-best distance ratio ≤ 5e-5).
 #[test]
 fn best_rotation_recovers_field_rotation_on_sphere() {
     let s = icosphere(24);
@@ -447,7 +447,7 @@ fn best_rotation_recovers_field_rotation_on_sphere() {
         let found = rotations_found(&s, v, &FanParams::default(), 6.0);
         for (k, &(best, ratio)) in found.iter().enumerate() {
             assert_eq!(best, k, "vertex {v}: ratio to next best {ratio}");
-            assert!(ratio < 0.1, "vertex {v} k {k}: best / next best {ratio}");
+            assert!(ratio < 1e-3, "vertex {v} k {k}: best / next best {ratio}");
         }
     }
 }
