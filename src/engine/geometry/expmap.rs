@@ -16,7 +16,15 @@
 //! by the average of the candidates from *all* already-placed neighbours, weighted by
 //! `1/|q - r|²`. This is our own averaging variant in the spirit of the upwind schemes that
 //! followed the DEM (Melvær & Reimers 2012 improve the DEM with a triangle-based distance update,
-//! "DGPC", which is **not** implemented here).
+//! "DGPC", which is **not** implemented here). Measured on a 10k-vertex unit sphere at radius
+//! 0.4 it is slightly *less* accurate than the plain DEM (mean relative radius error 5.5e-4 vs
+//! 3.7e-5), so it is off by default.
+//!
+//! Implementation: the projected edge vectors and the frame-to-frame transport rotations are
+//! precomputed once per directed edge (as complex numbers in the per-vertex frames), so building
+//! a chart is Dijkstra over 2D complex arithmetic. [`exponential_map`] stores 12 bytes per chart
+//! entry (about `π r² / (0.87 ē²)` entries per vertex for radius `r` and mean edge `ē` on a
+//! regular triangulation).
 //!
 //! Polar angle `θ = atan2(y, x)` in `(-π, π]`, counter-clockwise about the normal, measured from
 //! the frame's tangent; `r = |U|` in world units. Written by hand: no crate does this.
