@@ -276,7 +276,7 @@ pub fn exponential_map(
     let radius = world_radius(surface, params.radius, params.radius_unit);
     let connection = Connection::new(surface, frames);
     let stage = control.stage("exponential map", nv as u64)?;
-    let per_chunk: Vec<(Vec<u32>, Vec<[f32; 2]>, Vec<u32>)> = (0..nv)
+    let per_chunk: Vec<ChunkCharts> = (0..nv)
         .into_par_iter()
         .chunks(CHUNK)
         .map_init(
@@ -322,7 +322,10 @@ pub fn exponential_map(
     Ok(out)
 }
 
-/// Sources per parallel work item (and per progress tick).
+/// Charts of one chunk of sources: vertices, coordinates, entry count per source.
+type ChunkCharts = (Vec<u32>, Vec<[f32; 2]>, Vec<u32>);
+
+/// Sources per parallel work item.
 pub(crate) const CHUNK: usize = 256;
 
 /// Vertex one-rings as CSR (neighbours ascending, each once), from the faces, with the

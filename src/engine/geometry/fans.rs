@@ -248,12 +248,7 @@ impl Fans {
 
     /// Number of fans (vertices).
     pub fn len(&self) -> usize {
-        let n = self.shape().len();
-        if n == 0 {
-            0
-        } else {
-            self.data.len() / n
-        }
+        self.data.len().checked_div(self.shape().len()).unwrap_or(0)
     }
 
     /// Whether there are no fans.
