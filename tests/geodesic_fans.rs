@@ -157,6 +157,11 @@ fn rgb_fans(s: &Surface, frames: &LocalFrames, values: &[f32], params: &FanParam
     geodesic_fans(s, frames, field, params, &Control::new()).unwrap()
 }
 
+fn rgb_fans_result(s: &Surface, values: &[f32], params: &FanParams) -> Result<Fans, FanError> {
+    let field = FieldRef { dim: 3, values };
+    geodesic_fans(s, &frames_of(s), field, params, &Control::new())
+}
+
 /// The MeshMatch fan shape for RGB: 3 rings, 18 spokes.
 const SHAPE: FanShape = FanShape {
     rings: 3,
@@ -498,42 +503,32 @@ fn fans_are_identical_with_one_and_two_threads() {
 #[test]
 fn fans_reject_bad_input_and_honour_cancellation() {
     let s = plane_grid(8, 0.0);
-    let frames = frames_of(&s);
     let values = vec![0.0f32; 81 * 3];
-    let (dim, short) = (3, &values[..80]);
-    let field = FieldRef { dim, values: short };
+    let r = rgb_fans_result(&s, &values[..80], &FanParams::default());
+    assert!(matches!(r, Err(FanError::LengthMismatch { got: 80, .. })));
+    let p: FanParams = serde_json::from_str(r#"{"rings": 0}"#).unwrap();
+    assert_eq!((p.spokes, p.filter), (18, FanFilter::LocalLinear));
+    let r = rgb_fans_result(&s, &values, &p);
     assert!(matches!(
-        geodesic_fans(&s, &frames, field, &FanParams::default(), &Control::new()),
-        Err(FanError::LengthMismatch { got: 80, .. })
-    ));
-    let field = FieldRef {
-        dim,
-        values: &values,
-    };
-    let bad = FanParams {
-        rings: 0,
-        ..Default::default()
-    };
-    assert!(matches!(
-        geodesic_fans(&s, &frames, field, &bad, &Control::new()),
+        r,
         Err(FanError::InvalidParam { name: "rings", .. })
     ));
+    // No faces: no mean edge length to measure the radius in.
+    let pts = Surface::from_triangles(vec![[0.0; 3]; 2], vec![]);
+    let r = rgb_fans_result(&pts, &[0.0; 6], &FanParams::default());
+    assert!(matches!(r, Err(FanError::InvalidParam { value: 0.0, .. })));
+    let (frames, dim, values) = (frames_of(&s), 3, &values[..]);
+    let field = FieldRef { dim, values };
     let c = Control::new();
     geodesic_fans(&s, &frames, field, &FanParams::default(), &c).unwrap();
     let progress = c.progress();
-    assert_eq!(progress.stage, "geodesic fans");
-    assert_eq!(progress.stage_fraction, 1.0);
-    let c = Control::new();
+    assert_eq!(
+        (progress.stage.as_str(), progress.stage_fraction),
+        ("geodesic fans", 1.0)
+    );
     c.cancel();
-    assert_eq!(
-        geodesic_fans(&s, &frames, field, &FanParams::default(), &c),
-        Err(FanError::Cancelled)
-    );
-    let p: FanParams = serde_json::from_str(r#"{"rings": 2}"#).unwrap();
-    assert_eq!(
-        (p.rings, p.spokes, p.filter),
-        (2, 18, FanFilter::LocalLinear)
-    );
+    let r = geodesic_fans(&s, &frames, field, &FanParams::default(), &c);
+    assert_eq!(r, Err(FanError::Cancelled));
 }
 
 // Benchmark

@@ -283,6 +283,14 @@ pub fn geodesic_fans(
         dim: field.dim,
     };
     let radius = world_radius(surface, params.radius, params.radius_unit);
+    if nv > 0 && !(radius > 0.0 && radius.is_finite()) {
+        // E.g. a radius in mean edge lengths on a surface without faces.
+        return Err(FanError::InvalidParam {
+            name: "radius (world units)",
+            value: radius as f64,
+            range: "(0, inf)",
+        });
+    }
     let sigma = params.sigma * radius / params.rings as f32;
     let reach = params.cutoff * sigma;
     let chart_params = ExpMapParams {
