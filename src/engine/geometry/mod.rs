@@ -1,9 +1,11 @@
 //! Differential geometry on Surfaces: Laplacian and mass, geodesics (heat method, bounded
-//! walks), curvature, and ray-cast shape features (solid angle, occlusion, shape diameter).
-//! Each operator is a plain function with a `Params` struct.
+//! walks), exponential map and geodesic fans, curvature, and ray-cast shape features (solid
+//! angle, occlusion, shape diameter). Each operator is a plain function with a `Params` struct.
 
 pub mod bench;
 pub mod curvature;
+pub mod expmap;
+pub mod fans;
 pub mod heat;
 pub mod laplacian;
 pub mod occlusion;
