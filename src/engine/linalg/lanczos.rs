@@ -257,13 +257,12 @@ fn orthonormalize(
     (h, r)
 }
 
+/// Ritz values (descending), Ritz vectors in basis coordinates, residual estimates.
+type RitzPairs = (Vec<f64>, Mat<f64>, Vec<f64>);
+
 /// One Rayleigh–Ritz step on the leading `dim × dim` block of `h`: Ritz values (descending),
 /// vectors, and residual estimates `‖R s₊‖ / θ` using the coupling block `h[dim.., dim-b..dim]`.
-fn rayleigh_ritz(
-    h: &Mat<f64>,
-    dim: usize,
-    b: usize,
-) -> Result<(Vec<f64>, Mat<f64>, Vec<f64>), LanczosError> {
+fn rayleigh_ritz(h: &Mat<f64>, dim: usize, b: usize) -> Result<RitzPairs, LanczosError> {
     let sym = Mat::<f64>::from_fn(dim, dim, |i, j| 0.5 * (h[(i, j)] + h[(j, i)]));
     let (vals, vecs) = symmetric_eigen(sym.as_ref())?;
     // Descending order.
@@ -286,13 +285,12 @@ fn rayleigh_ritz(
 }
 
 /// The `k` largest eigenvalues `θ` of `Op = (K − σM)⁻¹ M` and their `M`-orthonormal vectors,
-/// given `factor` = Cholesky of `K − σM` and the diagonal `mass` of `M` (all positive).
-/// `progress(converged)` is called after every block (return `Err` to cancel).
+/// given `factor` = Cholesky of `K − σM` and the diagonal `mass` of `M` (all positive). Solves
+/// run through [`NumericCholesky::solve_many`]. `progress(converged)` is called after every
+/// block (return `Err` to cancel).
 ///
 /// # Errors
-/// [`LanczosError::InvalidParam`] for bad parameters or `k` (`1 ≤ k`, basis ≤ n),
-/// [`LanczosError::Linalg`] for a failed solve, [`LanczosError::DenseEigen`],
-/// [`LanczosError::Cancelled`].
+/// As [`shift_invert_lanczos_with`].
 pub fn shift_invert_lanczos(
     factor: &NumericCholesky,
     mass: &[f64],
@@ -301,6 +299,36 @@ pub fn shift_invert_lanczos(
     progress: &mut dyn FnMut(usize) -> Result<(), Cancelled>,
 ) -> Result<ShiftInvertEigen, LanczosError> {
     let n = factor.dim();
+    let mut solve = |mut block: MatMut<'_, f64>| -> Result<(), LinalgError> {
+        let mut rhs: Vec<Vec<f64>> = (0..block.ncols())
+            .map(|c| (0..n).map(|i| block[(i, c)]).collect())
+            .collect();
+        factor.solve_many(&mut rhs)?;
+        for (c, x) in rhs.iter().enumerate() {
+            for i in 0..n {
+                block[(i, c)] = x[i];
+            }
+        }
+        Ok(())
+    };
+    shift_invert_lanczos_with(n, &mut solve, mass, k, params, progress)
+}
+
+/// As [`shift_invert_lanczos`] with any solver of `(K − σM) X = B`: `solve(block)` replaces
+/// the `n × b` block `B` by `X`. It must be deterministic for determinism of the result.
+///
+/// # Errors
+/// [`LanczosError::InvalidParam`] for bad parameters or `k` (`1 ≤ k`,
+/// `k + 2·block_size ≤ basis ≤ n − block_size`), [`LanczosError::Linalg`] for a failed solve,
+/// [`LanczosError::DenseEigen`], [`LanczosError::Cancelled`].
+pub fn shift_invert_lanczos_with(
+    n: usize,
+    solve: &mut dyn FnMut(MatMut<'_, f64>) -> Result<(), LinalgError>,
+    mass: &[f64],
+    k: usize,
+    params: &LanczosParams,
+    progress: &mut dyn FnMut(usize) -> Result<(), Cancelled>,
+) -> Result<ShiftInvertEigen, LanczosError> {
     let b = params.block_size;
     if !(1..=64).contains(&b) {
         return Err(LanczosError::InvalidParam(format!(
@@ -344,16 +372,9 @@ pub fn shift_invert_lanczos(
     loop {
         // Expand: W = Op Q[:, active..active + b], with active = used - b.
         let active = used - b;
-        let mut rhs: Vec<Vec<f64>> = (0..b)
-            .map(|c| {
-                let col = q.col(active + c);
-                (0..n).map(|i| mass[i] * col[i]).collect()
-            })
-            .collect();
-        factor.solve_many(&mut rhs)?;
+        let mut w = mass_times(q.as_ref().subcols(active, b), mass);
+        solve(w.as_mut())?;
         applications += b;
-        let mut w = Mat::<f64>::from_fn(n, b, |i, c| rhs[c][i]);
-        drop(rhs);
         let (coef, r) = orthonormalize(&mut w, q.as_ref().subcols(0, used), mass, &mut rng);
         h.as_mut()
             .submatrix_mut(0, active, used, b)
