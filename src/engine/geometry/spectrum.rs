@@ -9,7 +9,8 @@
 //! lumped mass matrix. **Sign convention:** eigenvalues are non-negative and ascending
 //! (`λ₀ = 0` with a constant `φ₀` on a connected surface); units 1 / world units², so scaling
 //! the surface by `s` divides every `λ` by `s²` and every `φ` by `s`. On the unit sphere the
-//! continuous spectrum is `l(l + 1)` with multiplicity `2l + 1`.
+//! continuous spectrum is `l(l + 1)` with multiplicity `2l + 1`. Rounding-level negative
+//! Rayleigh quotients (of a constant mode) are reported as 0.
 //!
 //! Solvers ([`SpectrumSolver`]):
 //! - **Iterative** (default above [`SpectrumParams::dense_max_vertices`]): shift-invert block
