@@ -1,6 +1,7 @@
 //! Differential geometry on Surfaces: Laplacian and mass, geodesics (heat method, bounded
 //! walks), exponential map and geodesic fans, curvature, and ray-cast shape features (solid
-//! angle, occlusion, shape diameter). Each operator is a plain function with a `Params` struct.
+//! angle, occlusion, shape diameter), the Laplace–Beltrami spectrum and spectral signatures
+//! (HKS, WKS). Each operator is a plain function with a `Params` struct.
 
 pub mod bench;
 pub mod curvature;
@@ -11,5 +12,7 @@ pub mod laplacian;
 pub mod occlusion;
 pub mod ray_sets;
 pub mod sdf;
+pub mod signatures;
 pub mod solid_angle;
+pub mod spectrum;
 pub mod walk;

@@ -9,11 +9,14 @@
 //!   ordering) split into a [`cholesky::SymbolicCholesky`] computed once per pattern and
 //!   [`cholesky::NumericCholesky`] factors computed from it for any value vector, with solves for
 //!   one or many right-hand sides.
+//! - [`lanczos`]: shift-invert block Lanczos (Krylov–Schur restarts) for the lowest eigenpairs
+//!   of `K φ = λ M φ` with `M` diagonal, on a Cholesky factor of `K − σM`.
 //!
 //! Written by hand: only the glue (pattern bookkeeping, value reuse, parallel multi-RHS solves);
 //! the factorization itself is faer's.
 
 pub mod cholesky;
+pub mod lanczos;
 pub mod sparse;
 
 pub use cholesky::{NumericCholesky, SymbolicCholesky};
