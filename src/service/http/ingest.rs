@@ -51,8 +51,46 @@ pub struct Upload {
     pub pattern: Option<UploadFile>,
     /// Hex SHA-256 over every part (name, filename, content).
     pub request_hash: String,
-    /// Owns the temporary folder; dropping it deletes whatever was not moved into the store.
-    pub _dir: tempfile::TempDir,
+    /// Owns the temporary files; dropping it deletes whatever was not moved into the store.
+    pub _temp: TempFiles,
+}
+
+/// Temporary files of one upload, directly inside the blob store's temp folder (so the store
+/// can take them by rename); those still there when this is dropped are deleted.
+#[derive(Debug)]
+pub struct TempFiles {
+    dir: PathBuf,
+    prefix: String,
+    made: std::sync::Mutex<Vec<PathBuf>>,
+}
+
+impl TempFiles {
+    fn new(dir: &Path) -> Self {
+        Self {
+            dir: dir.to_path_buf(),
+            prefix: format!("upload-{}", uuid::Uuid::new_v4().simple()),
+            made: Default::default(),
+        }
+    }
+
+    /// A new file path, removed on drop unless moved away.
+    fn path(&self, tag: &str) -> PathBuf {
+        let p = self.dir.join(format!("{}-{tag}", self.prefix));
+        if let Ok(mut m) = self.made.lock() {
+            m.push(p.clone());
+        }
+        p
+    }
+}
+
+impl Drop for TempFiles {
+    fn drop(&mut self) {
+        if let Ok(m) = self.made.lock() {
+            for p in m.iter() {
+                let _ = std::fs::remove_file(p);
+            }
+        }
+    }
 }
 
 fn multipart_error(e: MultipartError, config: &ServeConfig) -> ApiError {
@@ -126,10 +164,7 @@ pub async fn read_upload(
     temp_root: &Path,
 ) -> Result<Upload, ApiError> {
     std::fs::create_dir_all(temp_root).map_err(ApiError::internal)?;
-    let dir = tempfile::Builder::new()
-        .prefix("upload-")
-        .tempdir_in(temp_root)
-        .map_err(ApiError::internal)?;
+    let temp = std::sync::Arc::new(TempFiles::new(temp_root));
     let mut request = Sha256::new();
     let mut source = Vec::new();
     let mut target = Vec::new();
@@ -165,7 +200,7 @@ pub async fn read_upload(
             .map(str::to_string)
             .unwrap_or_else(|| part.clone());
         check_name(&part, &name)?;
-        let path = dir.path().join(format!("part-{count}"));
+        let path = temp.path(&format!("part-{count}"));
         let cap = if part == "constraints" {
             MAX_CONSTRAINTS_BYTES as u64
         } else {
@@ -227,12 +262,12 @@ pub async fn read_upload(
         .limit("max_texture_size", config.max_texture_size));
     }
 
-    let work_dir = dir.path().to_path_buf();
+    let work = temp.clone();
     let cfg = config.clone();
     let pattern_check = pattern.clone();
     let validated = tokio::task::spawn_blocking(move || -> Result<_, ApiError> {
-        let source = assemble("source", source, &work_dir, &cfg)?;
-        let target = assemble("target", target, &work_dir, &cfg)?;
+        let source = assemble("source", source, &work, &cfg)?;
+        let target = assemble("target", target, &work, &cfg)?;
         if let Some(p) = &pattern_check {
             check_pattern(&p.path, &cfg)?;
         }
@@ -254,7 +289,7 @@ pub async fn read_upload(
         constraints: parsed,
         pattern,
         request_hash: hex::encode(request.finalize()),
-        _dir: dir,
+        _temp: std::sync::Arc::try_unwrap(temp).map_err(|_| ApiError::internal("temp files still shared"))?,
     })
 }
 
@@ -279,11 +314,11 @@ fn is_main(name: &str) -> bool {
 fn assemble(
     side: &str,
     mut files: Vec<UploadFile>,
-    dir: &Path,
+    temp: &TempFiles,
     config: &ServeConfig,
 ) -> Result<UploadModel, ApiError> {
     if files.len() == 1 && is_zip(&files[0]) {
-        files = unzip(side, &files[0], dir, config)?;
+        files = unzip(side, &files[0], temp, config)?;
     }
     if files.len() > config.max_files {
         return Err(ApiError::new(
@@ -346,7 +381,7 @@ fn assemble(
 fn unzip(
     side: &str,
     zip_file: &UploadFile,
-    dir: &Path,
+    temp: &TempFiles,
     config: &ServeConfig,
 ) -> Result<Vec<UploadFile>, ApiError> {
     let bad = |detail: String| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "invalid-zip", "Invalid zip", detail).field(side);
@@ -378,7 +413,7 @@ fn unzip(
         };
         let name = rel.to_string_lossy().replace('\\', "/");
         check_name(side, &name)?;
-        let path = dir.join(format!("{side}-zip-{i}"));
+        let path = temp.path(&format!("{side}-zip-{i}"));
         let mut file = std::fs::File::create(&path).map_err(ApiError::internal)?;
         // Never trust the declared size: copy at most cap + 1 bytes.
         let copied = std::io::copy(&mut (&mut entry).take(config.max_part_bytes + 1), &mut file)

@@ -164,6 +164,11 @@ impl ApiError {
                 "Artifact not found",
                 format!("no stored file {key:?}"),
             ),
+            StoreError::InvalidCursor(c) => Self::bad_request(
+                "invalid-cursor",
+                "next",
+                format!("cursor {c:?} was not issued by this server"),
+            ),
             other => Self::internal(other),
         }
     }
