@@ -1,1 +1,660 @@
-//! (in progress)
+//! The job runner: the one place that knows both the service and the engine (DESIGN.md
+//! "Layout"). It claims enqueued jobs from the [`JobStore`], reads their inputs from the
+//! [`BlobStore`], runs [`crate::engine::pipeline::transfer`] on a dedicated rayon pool under a
+//! [`Control`], publishes progress, and stores the results.
+//!
+//! Threads: the engine never runs on a tokio thread. Each job is `pool.spawn`ed onto the rayon
+//! pool (threads `retex-engine-N`) and awaited through a `tokio::sync::oneshot`, inside
+//! `catch_unwind`: a panic fails that job with its message and the process lives on. Store calls
+//! from async code go through `spawn_blocking`.
+//!
+//! Progress: while a job runs, its task samples `Control::progress` every
+//! [`RunnerConfig::progress_interval`]; each change is broadcast as a [`JobEvent`] and written
+//! to the store at most every [`DB_PROGRESS_INTERVAL`]. A [`JobEvent::revision`] is the
+//! revision of the stored record the event is at or after (progress events between two store
+//! writes share it).
+//!
+//! Durability order on success: the result model and every artifact are written under
+//! deterministic keys (`jobs/<id>/outputs/<name>`, fsynced), then the job flips to `succeeded`
+//! in one transaction, so a `kill -9` at any point leaves either a processing job (re-run after
+//! restart by [`JobStore::recover`]) or a finished job whose files exist.
+//!
+//! Cancellation: [`Runner::cancel`] flips the job's Control and wakes the job's task, which
+//! finishes the job as `canceled` in the store at once (clients never wait on the engine). The
+//! engine stops at its next Control check (every long loop checks); until then the worker slot
+//! stays taken, so at most `workers` engine calls ever run. Results of an engine call that
+//! completes after the cancel are discarded. On [`Runner::shutdown`] the jobs still running
+//! after the deadline are cancelled the same way but put back to `enqueued` instead (they run
+//! again after restart).
+
+use std::cell::Cell;
+use std::collections::HashMap;
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use chrono::Utc;
+use sha2::{Digest, Sha256};
+use tokio::sync::{broadcast, oneshot, watch, Notify};
+use uuid::Uuid;
+
+use super::problem::{constraints_problem, internal_problem, panic_problem, transfer_problem};
+use crate::engine::asset::constraints::{Constraints, OutputFormat};
+use crate::engine::asset::{BlobSet, IngestLimits};
+use crate::engine::control::{Control, Progress};
+use crate::engine::pipeline::{transfer, ModelInput, TransferError, TransferInput};
+use crate::service::model::{ArtifactRef, JobProgress, JobRecord, JobStatus, ModelFiles, Problem};
+use crate::service::store::{BlobStore, Finish, JobStore, StoreError};
+
+/// Store writes of progress are at most this frequent per job.
+pub const DB_PROGRESS_INTERVAL: Duration = Duration::from_millis(500);
+/// The dispatcher looks for work at least this often even without [`Runner::notify`].
+const DISPATCH_TICK: Duration = Duration::from_secs(1);
+/// How long a cancel for a job that is not running (yet) is remembered.
+const EARLY_CANCEL_TTL: Duration = Duration::from_secs(30);
+/// After the shutdown deadline, how long cancelled jobs get to stop.
+const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
+/// Tries of storing a job's terminal state.
+const FINISH_ATTEMPTS: u32 = 4;
+/// Capacity of the event channel (slow subscribers miss events and see `Lagged`).
+const EVENT_CAPACITY: usize = 1024;
+
+thread_local! {
+    static ENGINE_THREAD: Cell<bool> = const { Cell::new(false) };
+}
+
+/// True when called on one of the runner's engine threads.
+pub fn on_engine_thread() -> bool {
+    ENGINE_THREAD.with(Cell::get)
+}
+
+/// Configuration of the [`Runner`].
+#[derive(Clone, Debug)]
+pub struct RunnerConfig {
+    /// Engine threads and jobs run at once. Default: the number of cores.
+    pub workers: usize,
+    /// Starts of one job before recovery fails it instead of re-enqueueing. Default: 3.
+    pub max_attempts: u32,
+    /// Ingest limits of both models.
+    pub limits: IngestLimits,
+    /// Largest `output.texture_size` a job may ask for, in texels. Default: 8192.
+    pub max_texture_size: u32,
+    /// How often a running job's progress is sampled. Default: 100 ms.
+    pub progress_interval: Duration,
+}
+
+impl Default for RunnerConfig {
+    fn default() -> Self {
+        Self {
+            workers: std::thread::available_parallelism().map_or(2, |n| n.get()),
+            max_attempts: 3,
+            limits: IngestLimits::default(),
+            max_texture_size: 8192,
+            progress_interval: Duration::from_millis(100),
+        }
+    }
+}
+
+/// A change of a job's status or progress.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct JobEvent {
+    /// The job.
+    pub id: Uuid,
+    /// Its status after the change.
+    pub status: JobStatus,
+    /// Its progress after the change.
+    pub progress: JobProgress,
+    /// The stored revision the event is at or after.
+    pub revision: u64,
+}
+
+/// A job running here.
+struct Running {
+    control: Control,
+    /// Cancel requested by a client: finish as canceled.
+    client_cancel: AtomicBool,
+    /// Stopped by shutdown: put back to enqueued.
+    requeue: AtomicBool,
+    /// Wakes the job's task when a client cancels.
+    cancel_wake: Notify,
+}
+
+/// A test hook run on the engine thread right before the engine call (see
+/// [`Runner::set_engine_hook`]).
+#[doc(hidden)]
+pub type EngineHook = Arc<dyn Fn(&JobRecord) + Send + Sync>;
+
+/// How a job ended on the engine side.
+enum Outcome {
+    Succeeded {
+        artifacts: Vec<ArtifactRef>,
+        report: serde_json::Value,
+        timings: Vec<(String, f64)>,
+    },
+    Failed(Problem),
+    Canceled,
+}
+
+/// Claims and runs jobs; see the module docs.
+pub struct Runner {
+    config: RunnerConfig,
+    jobs: Arc<dyn JobStore>,
+    blobs: Arc<dyn BlobStore>,
+    pool: Arc<rayon::ThreadPool>,
+    running: Mutex<HashMap<Uuid, Arc<Running>>>,
+    early_cancels: Mutex<HashMap<Uuid, Instant>>,
+    wake: Notify,
+    busy: watch::Sender<usize>,
+    events: broadcast::Sender<JobEvent>,
+    stopping: AtomicBool,
+    stage_times: Mutex<Vec<(String, f64)>>,
+    hook: Mutex<Option<EngineHook>>,
+    dispatcher: Mutex<Option<tokio::task::JoinHandle<()>>>,
+}
+
+impl std::fmt::Debug for Runner {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Runner")
+            .field("config", &self.config)
+            .field("busy", &*self.busy.borrow())
+            .finish_non_exhaustive()
+    }
+}
+
+fn locked<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn to_job_progress(p: Progress) -> JobProgress {
+    JobProgress {
+        stage: p.stage,
+        fraction: p.fraction,
+        stages_done: p.stages_done,
+        stages_total: p.stages_total,
+    }
+}
+
+fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
+    p.downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| p.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "non-string panic payload".to_string())
+}
+
+impl Runner {
+    /// Builds the dedicated rayon pool (threads named `retex-engine-N`), runs
+    /// [`JobStore::recover`], and spawns the dispatcher task that claims jobs while fewer than
+    /// `workers` run (woken by [`Runner::notify`] and by a periodic tick).
+    ///
+    /// # Errors
+    /// When called outside a tokio runtime, when the pool cannot be built, or when recovery
+    /// fails.
+    pub fn start(
+        config: RunnerConfig,
+        jobs: Arc<dyn JobStore>,
+        blobs: Arc<dyn BlobStore>,
+    ) -> Result<Arc<Runner>, StoreError> {
+        let handle = tokio::runtime::Handle::try_current().map_err(|_| {
+            StoreError::Io(std::io::Error::other(
+                "the runner must be started inside a tokio runtime",
+            ))
+        })?;
+        let workers = config.workers.max(1);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(workers)
+            .thread_name(|i| format!("retex-engine-{i}"))
+            .start_handler(|_| ENGINE_THREAD.with(|c| c.set(true)))
+            .build()
+            .map_err(|e| StoreError::Io(std::io::Error::other(format!("engine pool: {e}"))))?;
+        let recovery = jobs.recover(config.max_attempts, Utc::now())?;
+        if !recovery.requeued.is_empty() || !recovery.failed.is_empty() {
+            tracing::warn!(
+                requeued = recovery.requeued.len(),
+                failed = recovery.failed.len(),
+                "recovered jobs interrupted by a previous stop"
+            );
+        }
+        let runner = Arc::new(Runner {
+            config: RunnerConfig { workers, ..config },
+            jobs,
+            blobs,
+            pool: Arc::new(pool),
+            running: Mutex::new(HashMap::new()),
+            early_cancels: Mutex::new(HashMap::new()),
+            wake: Notify::new(),
+            busy: watch::channel(0).0,
+            events: broadcast::channel(EVENT_CAPACITY).0,
+            stopping: AtomicBool::new(false),
+            stage_times: Mutex::new(Vec::new()),
+            hook: Mutex::new(None),
+            dispatcher: Mutex::new(None),
+        });
+        let me = Arc::clone(&runner);
+        let task = handle.spawn(async move { me.dispatch().await });
+        *locked(&runner.dispatcher) = Some(task);
+        Ok(runner)
+    }
+
+    /// Wakes the dispatcher: a job was enqueued.
+    pub fn notify(&self) {
+        self.wake.notify_one();
+    }
+
+    /// Requests cancellation of a processing job. True if it is running here (it stops within
+    /// a second and ends `canceled`). False otherwise; the request is still remembered for
+    /// 30 s, in case the job was claimed but has not registered yet.
+    pub fn cancel(&self, id: Uuid) -> bool {
+        if let Some(r) = locked(&self.running).get(&id) {
+            r.client_cancel.store(true, Ordering::SeqCst);
+            r.control.cancel();
+            r.cancel_wake.notify_one();
+            return true;
+        }
+        let mut early = locked(&self.early_cancels);
+        early.retain(|_, at| at.elapsed() < EARLY_CANCEL_TTL);
+        early.insert(id, Instant::now());
+        false
+    }
+
+    /// Live progress of a job running here (`None` once a client canceled it: the stored
+    /// record is then the truth).
+    pub fn progress(&self, id: Uuid) -> Option<JobProgress> {
+        let control = {
+            let running = locked(&self.running);
+            let r = running.get(&id)?;
+            if r.client_cancel.load(Ordering::SeqCst) {
+                return None;
+            }
+            r.control.clone()
+        };
+        Some(to_job_progress(control.progress()))
+    }
+
+    /// A receiver of every status and progress change of every job from now on.
+    pub fn subscribe(&self) -> broadcast::Receiver<JobEvent> {
+        self.events.subscribe()
+    }
+
+    /// Jobs running now.
+    pub fn busy_workers(&self) -> usize {
+        *self.busy.borrow()
+    }
+
+    /// The configured number of workers.
+    pub fn workers(&self) -> usize {
+        self.config.workers
+    }
+
+    /// Durations of the stages of jobs that succeeded since the last call, as
+    /// (stage name, seconds), taken from the engine report's timings (`load`, `project`,
+    /// `export`, ...). Draining: each duration is returned once, for a metrics histogram.
+    pub fn stage_durations(&self) -> Vec<(String, f64)> {
+        std::mem::take(&mut *locked(&self.stage_times))
+    }
+
+    /// Test hook: `hook` runs on the engine thread, inside the job's panic guard, right
+    /// before the engine call of every job. Not part of the API.
+    #[doc(hidden)]
+    pub fn set_engine_hook(&self, hook: Option<EngineHook>) {
+        *locked(&self.hook) = hook;
+    }
+
+    /// Graceful shutdown: stop claiming; wait up to `deadline` for running jobs; then cancel the
+    /// rest and put them back to `enqueued` (they run again after restart).
+    pub async fn shutdown(&self, deadline: Duration) {
+        self.stopping.store(true, Ordering::SeqCst);
+        self.wake.notify_one();
+        let dispatcher = locked(&self.dispatcher).take();
+        if let Some(d) = dispatcher {
+            let _ = d.await;
+        }
+        let mut busy = self.busy.subscribe();
+        if tokio::time::timeout(deadline, busy.wait_for(|n| *n == 0))
+            .await
+            .is_ok()
+        {
+            return;
+        }
+        let stopping: Vec<Arc<Running>> = locked(&self.running).values().cloned().collect();
+        tracing::warn!(
+            jobs = stopping.len(),
+            "shutdown deadline passed: stopping running jobs to re-enqueue them"
+        );
+        for r in &stopping {
+            r.requeue.store(true, Ordering::SeqCst);
+            r.control.cancel();
+        }
+        if tokio::time::timeout(SHUTDOWN_GRACE, busy.wait_for(|n| *n == 0))
+            .await
+            .is_err()
+        {
+            tracing::error!("jobs did not stop within the grace period; re-enqueueing anyway");
+        }
+        let jobs = Arc::clone(&self.jobs);
+        let requeue = move || -> Result<Vec<JobRecord>, StoreError> {
+            let recovery = jobs.recover(u32::MAX, Utc::now())?;
+            let mut records = Vec::with_capacity(recovery.requeued.len());
+            for id in recovery.requeued {
+                records.extend(jobs.get(id)?);
+            }
+            Ok(records)
+        };
+        match tokio::task::spawn_blocking(requeue).await {
+            Ok(Ok(records)) => {
+                for j in records {
+                    tracing::info!(id = %j.id, "job re-enqueued by shutdown");
+                    self.emit(j.id, j.status, j.progress, j.revision);
+                }
+            }
+            Ok(Err(e)) => tracing::error!(error = %e, "re-enqueueing jobs at shutdown failed"),
+            Err(e) => tracing::error!(error = %e, "re-enqueueing jobs at shutdown panicked"),
+        }
+    }
+
+    fn emit(&self, id: Uuid, status: JobStatus, progress: JobProgress, revision: u64) {
+        // No subscriber is not an error.
+        let _ = self.events.send(JobEvent {
+            id,
+            status,
+            progress,
+            revision,
+        });
+    }
+
+    /// Claims jobs while workers are free; sleeps until notified or the tick.
+    async fn dispatch(self: Arc<Self>) {
+        loop {
+            while !self.stopping.load(Ordering::SeqCst) && self.busy_workers() < self.config.workers
+            {
+                let jobs = Arc::clone(&self.jobs);
+                match tokio::task::spawn_blocking(move || jobs.claim_next(Utc::now())).await {
+                    Ok(Ok(Some(job))) => self.launch(job),
+                    Ok(Ok(None)) => break,
+                    Ok(Err(e)) => {
+                        tracing::error!(error = %e, "claiming a job failed");
+                        break;
+                    }
+                    Err(e) => {
+                        tracing::error!(error = %e, "claiming a job panicked");
+                        break;
+                    }
+                }
+            }
+            if self.stopping.load(Ordering::SeqCst) {
+                return;
+            }
+            tokio::select! {
+                _ = self.wake.notified() => {}
+                _ = tokio::time::sleep(DISPATCH_TICK) => {}
+            }
+        }
+    }
+
+    /// Registers a claimed job and spawns its task.
+    fn launch(self: &Arc<Self>, job: JobRecord) {
+        let running = Arc::new(Running {
+            control: Control::new(),
+            client_cancel: AtomicBool::new(false),
+            requeue: AtomicBool::new(false),
+            cancel_wake: Notify::new(),
+        });
+        self.busy.send_modify(|n| *n += 1);
+        locked(&self.running).insert(job.id, Arc::clone(&running));
+        if locked(&self.early_cancels).remove(&job.id).is_some() {
+            running.client_cancel.store(true, Ordering::SeqCst);
+            running.control.cancel();
+            running.cancel_wake.notify_one();
+        }
+        let me = Arc::clone(self);
+        tokio::spawn(async move {
+            let id = job.id;
+            me.run(job, running).await;
+            locked(&me.running).remove(&id);
+            me.busy.send_modify(|n| *n -= 1);
+            me.wake.notify_one();
+        });
+    }
+
+    /// Runs one claimed job to its end.
+    async fn run(&self, job: JobRecord, running: Arc<Running>) {
+        let id = job.id;
+        let span = tracing::info_span!("job", %id, method = %job.method, attempt = job.attempts);
+        let _enter = span.enter();
+        tracing::info!("job started");
+        let control = running.control.clone();
+        let mut revision = job.revision;
+        self.emit(id, JobStatus::Processing, job.progress.clone(), revision);
+
+        let (tx, mut rx) = oneshot::channel();
+        let ctx = EngineCtx {
+            blobs: Arc::clone(&self.blobs),
+            limits: self.config.limits.clone(),
+            max_texture_size: self.config.max_texture_size,
+            hook: locked(&self.hook).clone(),
+        };
+        let engine_job = job.clone();
+        let engine_control = control.clone();
+        self.pool.spawn(move || {
+            let out = catch_unwind(AssertUnwindSafe(|| {
+                execute(&ctx, &engine_job, &engine_control)
+            }))
+            .unwrap_or_else(|p| Outcome::Failed(panic_problem(&panic_message(p.as_ref()))));
+            let _ = tx.send(out);
+        });
+        drop(_enter);
+
+        let mut ticker = tokio::time::interval(self.config.progress_interval);
+        ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        let mut last_sent = job.progress.clone();
+        let mut last_stored = job.progress.clone();
+        let mut last_store_at: Option<Instant> = None;
+        let mut canceled = false;
+        let outcome = loop {
+            tokio::select! {
+                r = &mut rx => break r.unwrap_or_else(|_| {
+                    Outcome::Failed(internal_problem("the engine worker was lost".into()))
+                }),
+                _ = running.cancel_wake.notified(), if !canceled => {
+                    // The client sees `canceled` at once; the worker slot stays taken until the
+                    // engine reaches its next cancel check and returns.
+                    canceled = true;
+                    self.store_finish(id, Finish::Canceled).await;
+                }
+                _ = ticker.tick(), if !canceled => {
+                    let p = to_job_progress(control.progress());
+                    if p == last_sent {
+                        continue;
+                    }
+                    last_sent = p.clone();
+                    let due = last_store_at.is_none_or(|t| t.elapsed() >= DB_PROGRESS_INTERVAL);
+                    if due && p != last_stored {
+                        last_store_at = Some(Instant::now());
+                        let jobs = Arc::clone(&self.jobs);
+                        let stored = p.clone();
+                        match tokio::task::spawn_blocking(move || jobs.update_progress(id, &stored)).await {
+                            Ok(Ok(())) => {
+                                revision += 1;
+                                last_stored = p.clone();
+                            }
+                            Ok(Err(e)) => tracing::warn!(%id, error = %e, "storing progress failed"),
+                            Err(e) => tracing::warn!(%id, error = %e, "storing progress panicked"),
+                        }
+                    }
+                    self.emit(id, JobStatus::Processing, p, revision);
+                }
+            }
+        };
+
+        if canceled {
+            let how = match &outcome {
+                Outcome::Succeeded { .. } => "succeeded",
+                Outcome::Failed(_) => "failed",
+                Outcome::Canceled => "canceled",
+            };
+            tracing::info!(%id, engine = how, "canceled job's engine call returned");
+            return;
+        }
+        let finish = match outcome {
+            Outcome::Succeeded {
+                artifacts,
+                report,
+                timings,
+            } => {
+                locked(&self.stage_times).extend(timings);
+                Finish::Succeeded { artifacts, report }
+            }
+            Outcome::Failed(error) => Finish::Failed {
+                error,
+                report: None,
+            },
+            Outcome::Canceled => {
+                if running.requeue.load(Ordering::SeqCst)
+                    && !running.client_cancel.load(Ordering::SeqCst)
+                {
+                    // Left processing; `shutdown` re-enqueues it.
+                    tracing::info!(%id, "job stopped by shutdown");
+                    return;
+                }
+                Finish::Canceled
+            }
+        };
+        self.store_finish(id, finish).await;
+    }
+
+    /// Moves the job to its terminal state in the store and announces it. Transient store
+    /// failures (a locked or full disk) are retried a few times with backoff; a conflict (the
+    /// job is already terminal) or a missing job is not. A job whose finish could not be
+    /// stored stays `processing` and is re-run by the next start's recovery.
+    async fn store_finish(&self, id: Uuid, finish: Finish) {
+        let mut delay = Duration::from_millis(100);
+        for attempt in 1..=FINISH_ATTEMPTS {
+            let jobs = Arc::clone(&self.jobs);
+            let f = finish.clone();
+            match tokio::task::spawn_blocking(move || jobs.finish(id, f, Utc::now())).await {
+                Ok(Ok(rec)) => {
+                    tracing::info!(%id, status = rec.status.as_str(), "job finished");
+                    self.emit(id, rec.status, rec.progress.clone(), rec.revision);
+                    return;
+                }
+                Ok(Err(e @ (StoreError::Conflict { .. } | StoreError::NotFound(_)))) => {
+                    tracing::warn!(%id, error = %e, "job not finished");
+                    return;
+                }
+                Ok(Err(e)) => {
+                    tracing::error!(%id, attempt, error = %e, "finishing the job failed")
+                }
+                Err(e) => tracing::error!(%id, attempt, error = %e, "finishing the job panicked"),
+            }
+            tokio::time::sleep(delay).await;
+            delay *= 4;
+        }
+    }
+}
+
+/// What the engine side of a job needs.
+struct EngineCtx {
+    blobs: Arc<dyn BlobStore>,
+    limits: IngestLimits,
+    max_texture_size: u32,
+    hook: Option<EngineHook>,
+}
+
+fn read_model(blobs: &dyn BlobStore, files: &ModelFiles) -> Result<BlobSet, StoreError> {
+    let mut set = BlobSet::new();
+    for (name, key) in &files.files {
+        set.insert(name.clone(), blobs.get(key)?);
+    }
+    Ok(set)
+}
+
+/// The engine side of a job; runs on an engine thread.
+fn execute(ctx: &EngineCtx, job: &JobRecord, control: &Control) -> Outcome {
+    if let Some(hook) = &ctx.hook {
+        hook(job);
+    }
+    let inputs = (|| -> Result<_, StoreError> {
+        Ok((
+            read_model(ctx.blobs.as_ref(), &job.inputs.source)?,
+            read_model(ctx.blobs.as_ref(), &job.inputs.target)?,
+            ctx.blobs.get(&job.inputs.constraints)?,
+        ))
+    })();
+    let (source, target, constraints) = match inputs {
+        Ok(i) => i,
+        Err(e) => return Outcome::Failed(internal_problem(format!("reading the inputs: {e}"))),
+    };
+    let constraints = match Constraints::from_json(&constraints) {
+        Ok(c) => c,
+        Err(e) => return Outcome::Failed(constraints_problem(&e)),
+    };
+    if constraints.output.texture_size > ctx.max_texture_size {
+        return Outcome::Failed(Problem {
+            kind: "/problems/texture-size-limit".into(),
+            title: "the output texture size is over the limit".into(),
+            status: 422,
+            detail: format!(
+                "output.texture_size {} is over the limit of {}",
+                constraints.output.texture_size, ctx.max_texture_size
+            ),
+            field: Some("constraints.output.texture_size".into()),
+            limit: Some(ctx.max_texture_size.into()),
+        });
+    }
+    let input = TransferInput {
+        source: ModelInput {
+            main: &job.inputs.source.main,
+            blobs: &source,
+        },
+        target: ModelInput {
+            main: &job.inputs.target.main,
+            blobs: &target,
+        },
+        constraints,
+        limits: ctx.limits.clone(),
+    };
+    let out = match transfer(&input, control) {
+        Ok(out) => out,
+        Err(TransferError::Cancelled) => return Outcome::Canceled,
+        Err(e) => return Outcome::Failed(transfer_problem(&e)),
+    };
+    drop((source, target));
+    if control.is_cancelled() {
+        // Canceled after the engine's last check: the client already sees `canceled`.
+        return Outcome::Canceled;
+    }
+    let (name, media_type) = match out.format {
+        OutputFormat::Glb => ("result.glb", "model/gltf-binary"),
+        OutputFormat::Gltf => ("result.gltf", "model/gltf+json"),
+    };
+    let mut files: Vec<(String, String, Vec<u8>)> = Vec::with_capacity(out.artifacts.len() + 1);
+    files.push((name.into(), media_type.into(), out.model));
+    for a in out.artifacts {
+        files.push((a.name, a.media_type.to_string(), a.bytes));
+    }
+    let mut artifacts = Vec::with_capacity(files.len());
+    for (name, media_type, bytes) in files {
+        let key = format!("jobs/{}/outputs/{name}", job.id);
+        if let Err(e) = ctx.blobs.put(&key, &bytes) {
+            return Outcome::Failed(internal_problem(format!("storing {name}: {e}")));
+        }
+        artifacts.push(ArtifactRef {
+            name,
+            media_type,
+            key,
+            size: bytes.len() as u64,
+            sha256: hex::encode(Sha256::digest(&bytes)),
+        });
+    }
+    let timings = out
+        .report
+        .timings
+        .iter()
+        .map(|t| (t.stage.clone(), t.ms / 1e3))
+        .collect();
+    Outcome::Succeeded {
+        artifacts,
+        report: serde_json::to_value(&out.report).unwrap_or_default(),
+        timings,
+    }
+}

@@ -54,9 +54,14 @@ pub enum StoreError {
     /// Database failure.
     #[error("database: {0}")]
     Database(String),
+    /// A list cursor that this store did not issue.
+    #[error("invalid cursor {0:?}")]
+    InvalidCursor(String),
 }
 
 /// Result of [`JobStore::create`].
+// Returned once per submission; boxing the record would only complicate every caller.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug, PartialEq)]
 pub enum CreateOutcome {
     /// The job was inserted.
