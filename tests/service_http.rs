@@ -26,7 +26,10 @@ fn spot_glb_submit_poll_download_validate() {
     let r = submit(&s.base, &spot_parts(256), &[]);
     assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
     let id = id_of(&r);
-    assert_eq!(r.header("location"), Some(format!("/v1/jobs/{id}").as_str()));
+    assert_eq!(
+        r.header("location"),
+        Some(format!("/v1/jobs/{id}").as_str())
+    );
     assert!(r.header("retry-after").is_some());
     let doc = r.json();
     assert_eq!(doc["status"], "enqueued");
@@ -34,13 +37,21 @@ fn spot_glb_submit_poll_download_validate() {
 
     let doc = wait_for(&s.base, &id, Duration::from_secs(120), terminal);
     assert_eq!(doc["status"], "succeeded", "{doc}");
-    assert!(doc["finished_at"].is_string() && doc["report"].is_object(), "{doc}");
+    assert!(
+        doc["finished_at"].is_string() && doc["report"].is_object(),
+        "{doc}"
+    );
     assert!(!doc["links"]["artifacts"].as_array().unwrap().is_empty());
 
     // ETag / If-None-Match on the job document.
     let r = get(&format!("{}/v1/jobs/{id}", s.base));
     let tag = r.header("etag").unwrap().to_string();
-    let r = request("GET", &format!("{}/v1/jobs/{id}", s.base), &[("If-None-Match", &tag)], None);
+    let r = request(
+        "GET",
+        &format!("{}/v1/jobs/{id}", s.base),
+        &[("If-None-Match", &tag)],
+        None,
+    );
     assert_eq!(r.status, 304);
 
     // The result: a GLB with a strong ETag, that validates; ranges; 304.
@@ -56,12 +67,23 @@ fn spot_glb_submit_poll_download_validate() {
     let part = request("GET", &url, &[("Range", "bytes=4-11")], None);
     assert_eq!(part.status, 206);
     assert_eq!(part.body, r.body[4..12]);
-    assert_eq!(part.header("content-range").unwrap(), format!("bytes 4-11/{}", r.body.len()));
+    assert_eq!(
+        part.header("content-range").unwrap(),
+        format!("bytes 4-11/{}", r.body.len())
+    );
     let tail = request("GET", &url, &[("Range", "bytes=-16")], None);
     assert_eq!(tail.body, r.body[r.body.len() - 16..]);
-    let bad = request("GET", &url, &[("Range", &format!("bytes={}-", r.body.len()))], None);
+    let bad = request(
+        "GET",
+        &url,
+        &[("Range", &format!("bytes={}-", r.body.len()))],
+        None,
+    );
     bad.problem(416);
-    assert_eq!(request("GET", &url, &[("If-None-Match", &etag)], None).status, 304);
+    assert_eq!(
+        request("GET", &url, &[("If-None-Match", &etag)], None).status,
+        304
+    );
 
     // Artifacts are listed and downloadable; report.json is JSON.
     let r = get(&format!("{}/v1/jobs/{id}/artifacts/report.json", s.base));
@@ -77,7 +99,10 @@ fn spot_glb_submit_poll_download_validate() {
     assert!(m.contains("retex_stage_duration_seconds_bucket"), "{m}");
 
     // DELETE removes it and its files.
-    assert_eq!(request("DELETE", &format!("{}/v1/jobs/{id}", s.base), &[], None).status, 204);
+    assert_eq!(
+        request("DELETE", &format!("{}/v1/jobs/{id}", s.base), &[], None).status,
+        204
+    );
     get(&format!("{}/v1/jobs/{id}", s.base)).problem(404);
     assert!(!s.data.path().join(format!("blobs/jobs/{id}")).exists());
 }
@@ -124,7 +149,10 @@ fn fox_multi_file_gltf_followed_through_sse() {
     let mut parts = model_parts_from(&fox, "source");
     parts.extend(model_parts_from(&fox, "target"));
     parts.push(("constraints", "c.json", constraints(256)));
-    assert!(parts.len() >= 5, "Fox has .gltf, .bin and a texture per side");
+    assert!(
+        parts.len() >= 5,
+        "Fox has .gltf, .bin and a texture per side"
+    );
     let r = submit(&s.base, &parts, &[]);
     assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
     let id = id_of(&r);
@@ -154,7 +182,11 @@ fn fox_as_a_zip_is_accepted() {
     {
         let mut z = zip::ZipWriter::new(&mut zip_bytes);
         for (_, name, bytes) in model_parts_from(&fox, "source") {
-            z.start_file(format!("glTF/{name}"), zip::write::SimpleFileOptions::default()).unwrap();
+            z.start_file(
+                format!("glTF/{name}"),
+                zip::write::SimpleFileOptions::default(),
+            )
+            .unwrap();
             std::io::Write::write_all(&mut z, &bytes).unwrap();
         }
         z.finish().unwrap();
@@ -177,25 +209,50 @@ fn cancel_enqueued_and_processing_jobs() {
     let slow = submit(&s.base, &toycar_parts(8192), &[]);
     assert_eq!(slow.status, 202, "{}", String::from_utf8_lossy(&slow.body));
     let slow_id = id_of(&slow);
-    wait_for(&s.base, &slow_id, Duration::from_secs(60), |st| st != "enqueued");
+    wait_for(&s.base, &slow_id, Duration::from_secs(60), |st| {
+        st != "enqueued"
+    });
     let queued = submit(&s.base, &spot_parts(64), &[]);
     let queued_id = id_of(&queued);
     // Enqueued: canceled at once.
-    let r = request("POST", &format!("{}/v1/jobs/{queued_id}/cancel", s.base), &[], None);
+    let r = request(
+        "POST",
+        &format!("{}/v1/jobs/{queued_id}/cancel", s.base),
+        &[],
+        None,
+    );
     assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
     assert_eq!(r.json()["status"], "canceled");
     // Processing: stops within about a second.
     std::thread::sleep(Duration::from_millis(500));
     let t = std::time::Instant::now();
-    let r = request("POST", &format!("{}/v1/jobs/{slow_id}/cancel", s.base), &[], None);
+    let r = request(
+        "POST",
+        &format!("{}/v1/jobs/{slow_id}/cancel", s.base),
+        &[],
+        None,
+    );
     assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
     let doc = wait_for(&s.base, &slow_id, Duration::from_secs(10), terminal);
     assert_eq!(doc["status"], "canceled", "{doc}");
-    assert!(t.elapsed() < Duration::from_secs(3), "cancel took {:?}", t.elapsed());
+    assert!(
+        t.elapsed() < Duration::from_secs(3),
+        "cancel took {:?}",
+        t.elapsed()
+    );
     // Terminal: 409; result of a canceled job: 409.
-    request("POST", &format!("{}/v1/jobs/{slow_id}/cancel", s.base), &[], None).problem(409);
+    request(
+        "POST",
+        &format!("{}/v1/jobs/{slow_id}/cancel", s.base),
+        &[],
+        None,
+    )
+    .problem(409);
     get(&format!("{}/v1/jobs/{slow_id}/result", s.base)).problem(409);
-    assert_eq!(get(&format!("{}/v1/jobs/{queued_id}", s.base)).json()["status"], "canceled");
+    assert_eq!(
+        get(&format!("{}/v1/jobs/{queued_id}", s.base)).json()["status"],
+        "canceled"
+    );
 }
 
 #[test]
@@ -206,15 +263,28 @@ fn queue_full_answers_503_and_delete_of_running_job_is_409() {
     });
     let slow = submit(&s.base, &toycar_parts(8192), &[]);
     let slow_id = id_of(&slow);
-    wait_for(&s.base, &slow_id, Duration::from_secs(60), |st| st != "enqueued");
+    wait_for(&s.base, &slow_id, Duration::from_secs(60), |st| {
+        st != "enqueued"
+    });
     assert_eq!(submit(&s.base, &spot_parts(64), &[]).status, 202);
     let full = submit(&s.base, &spot_parts(64), &[]);
     let p = full.problem(503);
     assert!(full.header("retry-after").is_some());
     assert_eq!(p["limit"]["name"], "queue_len");
-    request("DELETE", &format!("{}/v1/jobs/{slow_id}", s.base), &[], None).problem(409);
+    request(
+        "DELETE",
+        &format!("{}/v1/jobs/{slow_id}", s.base),
+        &[],
+        None,
+    )
+    .problem(409);
     get(&format!("{}/v1/jobs/{slow_id}/result", s.base)).problem(409);
-    request("POST", &format!("{}/v1/jobs/{slow_id}/cancel", s.base), &[], None);
+    request(
+        "POST",
+        &format!("{}/v1/jobs/{slow_id}/cancel", s.base),
+        &[],
+        None,
+    );
 }
 
 #[test]
@@ -224,13 +294,21 @@ fn idempotency_key_replays_and_mismatches() {
     let first = submit(&s.base, &spot_parts(64), &key);
     assert_eq!(first.status, 202);
     let again = submit(&s.base, &spot_parts(64), &key);
-    assert!(again.status == 200 || again.status == 202, "{}", again.status);
+    assert!(
+        again.status == 200 || again.status == 202,
+        "{}",
+        again.status
+    );
     assert_eq!(id_of(&again), id_of(&first));
     let other = submit(&s.base, &spot_parts(128), &key);
     let p = other.problem(422);
     assert_eq!(p["type"], "/problems/idempotency-key-reused");
     let list = get(&format!("{}/v1/jobs", s.base)).json();
-    assert_eq!(list["jobs"].as_array().unwrap().len(), 1, "no duplicate job: {list}");
+    assert_eq!(
+        list["jobs"].as_array().unwrap().len(),
+        1,
+        "no duplicate job: {list}"
+    );
 }
 
 #[test]
@@ -257,11 +335,19 @@ fn list_filters_and_paginates_newest_first() {
     for id in &ids {
         wait_for(&s.base, id, Duration::from_secs(120), terminal);
     }
-    let ok = get(&format!("{}/v1/jobs?status=succeeded&method=project", s.base)).json();
+    let ok = get(&format!(
+        "{}/v1/jobs?status=succeeded&method=project",
+        s.base
+    ))
+    .json();
     assert_eq!(ok["jobs"].as_array().unwrap().len(), 5);
     let none = get(&format!("{}/v1/jobs?status=failed", s.base)).json();
     assert!(none["jobs"].as_array().unwrap().is_empty());
-    let future = get(&format!("{}/v1/jobs?created_after=2999-01-01T00:00:00Z", s.base)).json();
+    let future = get(&format!(
+        "{}/v1/jobs?created_after=2999-01-01T00:00:00Z",
+        s.base
+    ))
+    .json();
     assert!(future["jobs"].as_array().unwrap().is_empty());
     get(&format!("{}/v1/jobs?status=bogus", s.base)).problem(400);
     get(&format!("{}/v1/jobs?limit=0", s.base)).problem(400);
@@ -296,21 +382,38 @@ fn tokens_guard_everything_but_health_and_cors_exposes_headers() {
     let wrong = [("Authorization", "Bearer s3cret-tokem")];
     request("GET", &format!("{}/v1/jobs", s.base), &wrong, None).problem(401);
     let right = [("Authorization", "Bearer s3cret-token")];
-    assert_eq!(request("GET", &format!("{}/v1/jobs", s.base), &right, None).status, 200);
+    assert_eq!(
+        request("GET", &format!("{}/v1/jobs", s.base), &right, None).status,
+        200
+    );
     let r = submit(&s.base, &spot_parts(16), &right);
     assert_eq!(r.status, 202);
     let r = request(
         "GET",
         &format!("{}/v1/jobs", s.base),
-        &[("Origin", "https://dash.example"), ("Authorization", "Bearer s3cret-token")],
+        &[
+            ("Origin", "https://dash.example"),
+            ("Authorization", "Bearer s3cret-token"),
+        ],
         None,
     );
-    assert_eq!(r.header("access-control-allow-origin"), Some("https://dash.example"));
-    let exposed = r.header("access-control-expose-headers").unwrap().to_ascii_lowercase();
+    assert_eq!(
+        r.header("access-control-allow-origin"),
+        Some("https://dash.example")
+    );
+    let exposed = r
+        .header("access-control-expose-headers")
+        .unwrap()
+        .to_ascii_lowercase();
     for h in ["location", "etag", "retry-after"] {
         assert!(exposed.contains(h), "{exposed}");
     }
-    let r = request("GET", &format!("{}/healthz", s.base), &[("Origin", "https://evil.example")], None);
+    let r = request(
+        "GET",
+        &format!("{}/healthz", s.base),
+        &[("Origin", "https://evil.example")],
+        None,
+    );
     assert_eq!(r.header("access-control-allow-origin"), None);
 }
 
@@ -321,7 +424,13 @@ fn unknown_jobs_and_routes_are_problems() {
     for path in ["", "/result", "/events", "/artifacts/report.json"] {
         get(&format!("{}/v1/jobs/{id}{path}", s.base)).problem(404);
     }
-    request("POST", &format!("{}/v1/jobs/{id}/cancel", s.base), &[], None).problem(404);
+    request(
+        "POST",
+        &format!("{}/v1/jobs/{id}/cancel", s.base),
+        &[],
+        None,
+    )
+    .problem(404);
     request("DELETE", &format!("{}/v1/jobs/{id}", s.base), &[], None).problem(404);
     get(&format!("{}/v1/jobs/not-a-uuid", s.base)).problem(400);
     get(&format!("{}/v2/nothing", s.base)).problem(404);
@@ -334,13 +443,15 @@ fn the_engine_runs_only_on_runner_threads() {
     let calls = Arc::new(AtomicUsize::new(0));
     let bad = Arc::new(AtomicBool::new(false));
     let (c, b) = (calls.clone(), bad.clone());
-    s.state.runner.set_engine_hook(Some(Arc::new(move |_job: &retex::service::model::JobRecord| {
-        c.fetch_add(1, Ordering::SeqCst);
-        let on_tokio = tokio::runtime::Handle::try_current().is_ok();
-        if on_tokio || !retex::service::jobs::runner::on_engine_thread() {
-            b.store(true, Ordering::SeqCst);
-        }
-    })));
+    s.state.runner.set_engine_hook(Some(Arc::new(
+        move |_job: &retex::service::model::JobRecord| {
+            c.fetch_add(1, Ordering::SeqCst);
+            let on_tokio = tokio::runtime::Handle::try_current().is_ok();
+            if on_tokio || !retex::service::jobs::runner::on_engine_thread() {
+                b.store(true, Ordering::SeqCst);
+            }
+        },
+    )));
     let id = id_of(&submit(&s.base, &spot_parts(16), &[]));
     let doc = wait_for(&s.base, &id, Duration::from_secs(60), terminal);
     assert_eq!(doc["status"], "succeeded");
@@ -385,7 +496,11 @@ fn bomb_png(w: u32, h: u32) -> Vec<u8> {
         for &b in data {
             crc ^= b as u32;
             for _ in 0..8 {
-                crc = if crc & 1 != 0 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
+                crc = if crc & 1 != 0 {
+                    (crc >> 1) ^ 0xEDB8_8320
+                } else {
+                    crc >> 1
+                };
             }
         }
         !crc
@@ -395,7 +510,11 @@ fn bomb_png(w: u32, h: u32) -> Vec<u8> {
     ihdr.extend_from_slice(&w.to_be_bytes());
     ihdr.extend_from_slice(&h.to_be_bytes());
     ihdr.extend_from_slice(&[8, 6, 0, 0, 0]);
-    for chunk in [ihdr, b"IDAT\x78\x9c\x63\x00\x00\x00\x01\x00\x01".to_vec(), b"IEND".to_vec()] {
+    for chunk in [
+        ihdr,
+        b"IDAT\x78\x9c\x63\x00\x00\x00\x01\x00\x01".to_vec(),
+        b"IEND".to_vec(),
+    ] {
         out.extend_from_slice(&(chunk.len() as u32 - 4).to_be_bytes());
         out.extend_from_slice(&chunk);
         out.extend_from_slice(&crc32(&chunk).to_be_bytes());
@@ -425,44 +544,155 @@ fn malformed_uploads_get_4xx_problems_never_5xx() {
         let mut p = triangle_parts(|j| {
             j["images"] = serde_json::json!([{"uri": "bomb.png"}]);
             j["textures"] = serde_json::json!([{"source": 0}]);
-            j["materials"] = serde_json::json!([{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]);
+            j["materials"] =
+                serde_json::json!([{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]);
             j["meshes"][0]["primitives"][0]["material"] = 0.into();
         });
         p.push(("target", "bomb.png", bomb_png(100_000, 100_000)));
         p
     };
     let cases: Vec<(&str, Vec<Part<'static>>, u16, &str, Option<&str>)> = vec![
-        ("garbage glb", with(0, ("source", "x.glb", b"not a model at all".to_vec())), 422, "source", None),
-        ("lying chunk length", with(1, ("target", "x.glb", lying)), 422, "target", None),
-        ("truncated glb", with(1, ("target", "x.glb", truncated)), 422, "target", None),
-        ("../ uri", triangle_parts(|j| j["buffers"][0]["uri"] = "../../etc/passwd".into()), 422, "target.buffers[0].uri", None),
-        ("bomb png", bomb, 422, "target.images[0]", Some("max_image_side")),
-        ("index out of range", triangle_parts(|j| j["accessors"][1]["count"] = 4.into()), 422, "target", None),
-        ("missing target", spot_parts(64).into_iter().filter(|p| p.0 != "target").collect(), 400, "target", None),
-        ("missing constraints", spot_parts(64).into_iter().filter(|p| p.0 != "constraints").collect(), 400, "constraints", None),
-        ("bad json constraints", with(2, ("constraints", "c.json", b"{not json".to_vec())), 422, "constraints", None),
-        ("unknown method", with(2, ("constraints", "c.json", br#"{"version":1,"method":"magic"}"#.to_vec())), 422, "constraints.method", None),
-        ("texture over the server max", with(2, ("constraints", "c.json", constraints(2048))), 422, "constraints.output.texture_size", Some("max_texture_size")),
-        ("unknown part", with(2, ("colour", "c.json", constraints(64))), 400, "colour", None),
-        ("path in filename", with(0, ("source", "../spot.glb", spot.clone())), 400, "source", None),
-        ("part over max_part_bytes", with(0, ("source", "big.glb", vec![0u8; 5 << 20])), 413, "source", Some("max_part_bytes")),
+        (
+            "garbage glb",
+            with(0, ("source", "x.glb", b"not a model at all".to_vec())),
+            422,
+            "source",
+            None,
+        ),
+        (
+            "lying chunk length",
+            with(1, ("target", "x.glb", lying)),
+            422,
+            "target",
+            None,
+        ),
+        (
+            "truncated glb",
+            with(1, ("target", "x.glb", truncated)),
+            422,
+            "target",
+            None,
+        ),
+        (
+            "../ uri",
+            triangle_parts(|j| j["buffers"][0]["uri"] = "../../etc/passwd".into()),
+            422,
+            "target.buffers[0].uri",
+            None,
+        ),
+        (
+            "bomb png",
+            bomb,
+            422,
+            "target.images[0]",
+            Some("max_image_side"),
+        ),
+        (
+            "index out of range",
+            triangle_parts(|j| j["accessors"][1]["count"] = 4.into()),
+            422,
+            "target",
+            None,
+        ),
+        (
+            "missing target",
+            spot_parts(64)
+                .into_iter()
+                .filter(|p| p.0 != "target")
+                .collect(),
+            400,
+            "target",
+            None,
+        ),
+        (
+            "missing constraints",
+            spot_parts(64)
+                .into_iter()
+                .filter(|p| p.0 != "constraints")
+                .collect(),
+            400,
+            "constraints",
+            None,
+        ),
+        (
+            "bad json constraints",
+            with(2, ("constraints", "c.json", b"{not json".to_vec())),
+            422,
+            "constraints",
+            None,
+        ),
+        (
+            "unknown method",
+            with(
+                2,
+                (
+                    "constraints",
+                    "c.json",
+                    br#"{"version":1,"method":"magic"}"#.to_vec(),
+                ),
+            ),
+            422,
+            "constraints.method",
+            None,
+        ),
+        (
+            "texture over the server max",
+            with(2, ("constraints", "c.json", constraints(2048))),
+            422,
+            "constraints.output.texture_size",
+            Some("max_texture_size"),
+        ),
+        (
+            "unknown part",
+            with(2, ("colour", "c.json", constraints(64))),
+            400,
+            "colour",
+            None,
+        ),
+        (
+            "path in filename",
+            with(0, ("source", "../spot.glb", spot.clone())),
+            400,
+            "source",
+            None,
+        ),
+        (
+            "part over max_part_bytes",
+            with(0, ("source", "big.glb", vec![0u8; 5 << 20])),
+            413,
+            "source",
+            Some("max_part_bytes"),
+        ),
     ];
     for (what, parts, status, field, limit) in cases {
         let r = submit(&s.base, &parts, &[]);
         assert!(r.status < 500, "{what}: {}", r.status);
         let p = r.problem(status);
-        assert!(p["field"].as_str().unwrap_or("").starts_with(field), "{what}: {p}");
+        assert!(
+            p["field"].as_str().unwrap_or("").starts_with(field),
+            "{what}: {p}"
+        );
         if let Some(l) = limit {
             assert_eq!(p["limit"]["name"], l, "{what}: {p}");
         }
     }
     // The whole body over max_body_bytes: 413 naming the limit.
-    let parts: Vec<Part<'static>> = (0..4).map(|_| ("source", "x.bin", vec![1u8; 3_500_000])).collect();
+    let parts: Vec<Part<'static>> = (0..4)
+        .map(|_| ("source", "x.bin", vec![1u8; 3_500_000]))
+        .collect();
     let p = submit(&s.base, &parts, &[]).problem(413);
     assert_eq!(p["limit"]["name"], "max_body_bytes", "{p}");
     // Not multipart at all.
-    let r = request("POST", &format!("{}/v1/jobs", s.base), &[("Content-Type", "application/json")], Some(b"{}"));
+    let r = request(
+        "POST",
+        &format!("{}/v1/jobs", s.base),
+        &[("Content-Type", "application/json")],
+        Some(b"{}"),
+    );
     assert!((400..500).contains(&r.status), "{}", r.status);
     // Nothing was accepted.
-    assert!(get(&format!("{}/v1/jobs", s.base)).json()["jobs"].as_array().unwrap().is_empty());
+    assert!(get(&format!("{}/v1/jobs", s.base)).json()["jobs"]
+        .as_array()
+        .unwrap()
+        .is_empty());
 }

@@ -51,7 +51,8 @@ fn collect_refs(v: &serde_json::Value, out: &mut Vec<String>) {
 fn served_spec_is_the_code_spec_and_is_valid_openapi() {
     let s = TestServer::start(|_| {});
     let served = get(&format!("{}/v1/openapi.json", s.base)).json();
-    let code: serde_json::Value = serde_json::from_str(&openapi::spec().to_json().unwrap()).unwrap();
+    let code: serde_json::Value =
+        serde_json::from_str(&openapi::spec().to_json().unwrap()).unwrap();
     assert_eq!(served, code, "served spec differs from the code");
 
     assert!(served["openapi"].as_str().unwrap().starts_with("3."));
@@ -78,15 +79,23 @@ fn served_spec_is_the_code_spec_and_is_valid_openapi() {
         let responses = op["responses"].as_object().unwrap();
         assert!(!responses.is_empty(), "{method} {path}: no responses");
         for (code, r) in responses {
-            assert!(code.parse::<u16>().is_ok(), "{method} {path}: status {code}");
-            assert!(r["description"].is_string(), "{method} {path} {code}: description");
+            assert!(
+                code.parse::<u16>().is_ok(),
+                "{method} {path}: status {code}"
+            );
+            assert!(
+                r["description"].is_string(),
+                "{method} {path} {code}: description"
+            );
         }
         // Every path parameter is declared.
         for seg in path.split('/').filter(|s| s.starts_with('{')) {
             let name = seg.trim_matches(|c| c == '{' || c == '}');
             let params = op["parameters"].as_array().unwrap();
             assert!(
-                params.iter().any(|p| p["name"] == name && p["in"] == "path" && p["required"] == true),
+                params
+                    .iter()
+                    .any(|p| p["name"] == name && p["in"] == "path" && p["required"] == true),
                 "{method} {path}: path parameter {name}"
             );
         }
@@ -95,8 +104,13 @@ fn served_spec_is_the_code_spec_and_is_valid_openapi() {
     collect_refs(&served, &mut refs);
     assert!(!refs.is_empty());
     for r in refs {
-        let name = r.strip_prefix("#/components/schemas/").expect("local schema ref");
-        assert!(served["components"]["schemas"][name].is_object(), "dangling {r}");
+        let name = r
+            .strip_prefix("#/components/schemas/")
+            .expect("local schema ref");
+        assert!(
+            served["components"]["schemas"][name].is_object(),
+            "dangling {r}"
+        );
     }
     assert!(served["components"]["securitySchemes"]["bearer"].is_object());
 }

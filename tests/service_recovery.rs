@@ -17,7 +17,15 @@ use service_common::*;
 /// Starts `retex serve` on port 0 and returns the child and its base URL.
 fn spawn_server(data: &Path) -> (Child, String) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_retex"))
-        .args(["serve", "--addr", "127.0.0.1:0", "--workers", "1", "--shutdown-secs", "10"])
+        .args([
+            "serve",
+            "--addr",
+            "127.0.0.1:0",
+            "--workers",
+            "1",
+            "--shutdown-secs",
+            "10",
+        ])
         .arg("--data-dir")
         .arg(data)
         .env("RETEX_LOG", "warn")
@@ -66,7 +74,10 @@ fn kill_9_mid_job_then_restart_loses_and_duplicates_nothing() {
         }
     }
     assert!(
-        get(&format!("{base}/v1/jobs/{}", ids[0])).json()["attempts"].as_u64().unwrap() >= 2,
+        get(&format!("{base}/v1/jobs/{}", ids[0])).json()["attempts"]
+            .as_u64()
+            .unwrap()
+            >= 2,
         "the interrupted job ran again"
     );
     let list = get(&format!("{base}/v1/jobs?limit=100")).json();
@@ -95,7 +106,10 @@ fn kill_9_mid_job_then_restart_loses_and_duplicates_nothing() {
             assert!(status.success(), "exit status {status}");
             break;
         }
-        assert!(t.elapsed() < Duration::from_secs(15), "no exit after SIGTERM");
+        assert!(
+            t.elapsed() < Duration::from_secs(15),
+            "no exit after SIGTERM"
+        );
         std::thread::sleep(Duration::from_millis(50));
     }
 }

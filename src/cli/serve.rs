@@ -70,12 +70,28 @@ pub fn config(args: &ServeArgs) -> Result<ServeConfig, String> {
         Some(path) => ServeConfig::from_file(path).map_err(|e| e.to_string())?,
         None => ServeConfig::default(),
     };
-    c.apply_env(|k| std::env::var(k).ok()).map_err(|e| e.to_string())?;
+    c.apply_env(|k| std::env::var(k).ok())
+        .map_err(|e| e.to_string())?;
     macro_rules! flag {
         ($($name:ident),*) => { $( if let Some(v) = args.$name.clone() { c.$name = v; } )* };
     }
-    flag!(addr, data_dir, workers, queue_len, tokens, cors_origins, ttl_secs, prune_interval_secs);
-    flag!(body_timeout_secs, shutdown_secs, max_body_bytes, max_part_bytes, max_texture_size);
+    flag!(
+        addr,
+        data_dir,
+        workers,
+        queue_len,
+        tokens,
+        cors_origins,
+        ttl_secs,
+        prune_interval_secs
+    );
+    flag!(
+        body_timeout_secs,
+        shutdown_secs,
+        max_body_bytes,
+        max_part_bytes,
+        max_texture_size
+    );
     if let Some(v) = args.max_triangles {
         c.limits.max_triangles = v;
     }

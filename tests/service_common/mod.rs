@@ -218,7 +218,12 @@ pub fn model_parts_from(main: &Path, part: &'static str) -> Vec<Part<'static>> {
 }
 
 /// Polls the job until `done(status)` or the timeout; returns the last document.
-pub fn wait_for(base: &str, id: &str, timeout: Duration, done: impl Fn(&str) -> bool) -> serde_json::Value {
+pub fn wait_for(
+    base: &str,
+    id: &str,
+    timeout: Duration,
+    done: impl Fn(&str) -> bool,
+) -> serde_json::Value {
     let start = Instant::now();
     loop {
         let r = get(&format!("{base}/v1/jobs/{id}"));

@@ -43,7 +43,11 @@ fn doc(id: Uuid, status: JobStatus, p: &JobProgress, revision: u64) -> JobEventD
 }
 
 fn to_event(d: &JobEventDoc) -> Event {
-    let name = if d.status.is_terminal() { "done" } else { "progress" };
+    let name = if d.status.is_terminal() {
+        "done"
+    } else {
+        "progress"
+    };
     Event::default()
         .id(d.revision.to_string())
         .event(name)

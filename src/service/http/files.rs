@@ -51,7 +51,13 @@ pub fn parse_range(value: &str, len: u64) -> Result<Option<(u64, u64)>, ()> {
 fn content_disposition(name: &str) -> String {
     let ascii: String = name
         .chars()
-        .map(|c| if c.is_ascii_graphic() && c != '"' && c != '\\' { c } else { '_' })
+        .map(|c| {
+            if c.is_ascii_graphic() && c != '"' && c != '\\' {
+                c
+            } else {
+                '_'
+            }
+        })
         .collect();
     format!("attachment; filename=\"{ascii}\"")
 }
@@ -71,9 +77,15 @@ async fn serve_artifact(
     };
     set(header::ETAG, &tag);
     set(header::CONTENT_TYPE, &artifact.media_type);
-    set(header::CONTENT_DISPOSITION, &content_disposition(&download_name));
+    set(
+        header::CONTENT_DISPOSITION,
+        &content_disposition(&download_name),
+    );
     set(header::ACCEPT_RANGES, "bytes");
-    set(header::CACHE_CONTROL, "private, max-age=31536000, immutable");
+    set(
+        header::CACHE_CONTROL,
+        "private, max-age=31536000, immutable",
+    );
     if if_none_match(headers, &tag) {
         let mut resp = StatusCode::NOT_MODIFIED.into_response();
         resp.headers_mut().extend(base);
@@ -136,12 +148,20 @@ async fn finished_job(
     if record.status != JobStatus::Succeeded {
         let detail = match record.status {
             JobStatus::Enqueued | JobStatus::Processing => {
-                format!("job {id} is {}; the result exists once it succeeded", record.status.as_str())
+                format!(
+                    "job {id} is {}; the result exists once it succeeded",
+                    record.status.as_str()
+                )
             }
             s => format!("job {id} is {} and has no result", s.as_str()),
         };
-        let mut err = ApiError::new(StatusCode::CONFLICT, "job-not-succeeded", "Job has not succeeded", detail)
-            .field("status");
+        let mut err = ApiError::new(
+            StatusCode::CONFLICT,
+            "job-not-succeeded",
+            "Job has not succeeded",
+            detail,
+        )
+        .field("status");
         if !record.status.is_terminal() {
             err = err.retry_after(1);
         }
@@ -173,7 +193,11 @@ pub async fn result(
         .first()
         .cloned()
         .ok_or_else(|| ApiError::internal(format!("job {id} succeeded without a result")))?;
-    let ext = if artifact.media_type == "model/gltf+json" { "gltf" } else { "glb" };
+    let ext = if artifact.media_type == "model/gltf+json" {
+        "gltf"
+    } else {
+        "glb"
+    };
     serve_artifact(&state, artifact, format!("retex-{id}.{ext}"), &headers).await
 }
 

@@ -117,7 +117,9 @@ fn check_name(part: &str, name: &str) -> Result<(), ApiError> {
         || name.starts_with('/')
         || name.contains('\\')
         || name.contains('\0')
-        || name.split('/').any(|s| s.is_empty() || s == "." || s == "..");
+        || name
+            .split('/')
+            .any(|s| s.is_empty() || s == "." || s == "..");
     if bad {
         return Err(ApiError::bad_request(
             "invalid-filename",
@@ -139,7 +141,11 @@ async fn save_part(
     let mut file = std::fs::File::create(path).map_err(ApiError::internal)?;
     let mut hasher = Sha256::new();
     let mut len = 0u64;
-    while let Some(chunk) = field.chunk().await.map_err(|e| multipart_error(e, config))? {
+    while let Some(chunk) = field
+        .chunk()
+        .await
+        .map_err(|e| multipart_error(e, config))?
+    {
         len += chunk.len() as u64;
         if len > cap {
             let limit = if part == "constraints" {
@@ -177,7 +183,10 @@ pub async fn read_upload(
         .map_err(|e| multipart_error(e, config))?
     {
         let part = field.name().unwrap_or_default().to_string();
-        if !matches!(part.as_str(), "source" | "target" | "constraints" | "pattern") {
+        if !matches!(
+            part.as_str(),
+            "source" | "target" | "constraints" | "pattern"
+        ) {
             return Err(ApiError::bad_request(
                 "unknown-part",
                 &part,
@@ -247,7 +256,8 @@ pub async fn read_upload(
     }
     let constraints_path = constraints.ok_or_else(|| missing("constraints"))?;
     let constraints_bytes = std::fs::read(&constraints_path).map_err(ApiError::internal)?;
-    let parsed = Constraints::from_json(&constraints_bytes).map_err(|e| ApiError::constraints(&e))?;
+    let parsed =
+        Constraints::from_json(&constraints_bytes).map_err(|e| ApiError::constraints(&e))?;
     if parsed.output.texture_size > config.max_texture_size {
         return Err(ApiError::new(
             StatusCode::UNPROCESSABLE_ENTITY,
@@ -289,7 +299,8 @@ pub async fn read_upload(
         constraints: parsed,
         pattern,
         request_hash: hex::encode(request.finalize()),
-        _temp: std::sync::Arc::try_unwrap(temp).map_err(|_| ApiError::internal("temp files still shared"))?,
+        _temp: std::sync::Arc::try_unwrap(temp)
+            .map_err(|_| ApiError::internal("temp files still shared"))?,
     })
 }
 
@@ -325,7 +336,11 @@ fn assemble(
             StatusCode::PAYLOAD_TOO_LARGE,
             "too-many-files",
             "Too many files",
-            format!("{side} has {} files, over max_files = {}", files.len(), config.max_files),
+            format!(
+                "{side} has {} files, over max_files = {}",
+                files.len(),
+                config.max_files
+            ),
         )
         .field(side)
         .limit("max_files", config.max_files as u64));
@@ -345,7 +360,10 @@ fn assemble(
             return Err(ApiError::bad_request(
                 "ambiguous-main-file",
                 side,
-                format!("{side} has {} .glb/.gltf files; send one model per side", many.len()),
+                format!(
+                    "{side} has {} .glb/.gltf files; send one model per side",
+                    many.len()
+                ),
             ))
         }
     };
@@ -368,7 +386,10 @@ fn assemble(
         .into_iter()
         .filter_map(|f| {
             let rel = f.name.strip_prefix(&prefix)?.to_string();
-            Some(UploadFile { name: rel, path: f.path })
+            Some(UploadFile {
+                name: rel,
+                path: f.path,
+            })
         })
         .collect();
     Ok(UploadModel {
@@ -384,7 +405,15 @@ fn unzip(
     temp: &TempFiles,
     config: &ServeConfig,
 ) -> Result<Vec<UploadFile>, ApiError> {
-    let bad = |detail: String| ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "invalid-zip", "Invalid zip", detail).field(side);
+    let bad = |detail: String| {
+        ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid-zip",
+            "Invalid zip",
+            detail,
+        )
+        .field(side)
+    };
     let reader = std::fs::File::open(&zip_file.path).map_err(ApiError::internal)?;
     let mut archive = zip::ZipArchive::new(reader).map_err(|e| bad(format!("{side}: {e}")))?;
     if archive.len() > config.max_files {
@@ -392,7 +421,11 @@ fn unzip(
             StatusCode::PAYLOAD_TOO_LARGE,
             "too-many-files",
             "Too many files",
-            format!("{side} zip has {} entries, over max_files = {}", archive.len(), config.max_files),
+            format!(
+                "{side} zip has {} entries, over max_files = {}",
+                archive.len(),
+                config.max_files
+            ),
         )
         .field(side)
         .limit("max_files", config.max_files as u64));
@@ -400,7 +433,9 @@ fn unzip(
     let mut out = Vec::new();
     let mut total = 0u64;
     for i in 0..archive.len() {
-        let mut entry = archive.by_index(i).map_err(|e| bad(format!("{side}: entry {i}: {e}")))?;
+        let mut entry = archive
+            .by_index(i)
+            .map_err(|e| bad(format!("{side}: entry {i}: {e}")))?;
         if entry.is_dir() {
             continue;
         }
@@ -419,11 +454,19 @@ fn unzip(
         let copied = std::io::copy(&mut (&mut entry).take(config.max_part_bytes + 1), &mut file)
             .map_err(|e| bad(format!("{side}: {name}: {e}")))?;
         if copied > config.max_part_bytes {
-            return Err(ApiError::too_large(side, "max_part_bytes", config.max_part_bytes));
+            return Err(ApiError::too_large(
+                side,
+                "max_part_bytes",
+                config.max_part_bytes,
+            ));
         }
         total += copied;
         if total > config.limits.max_input_bytes {
-            return Err(ApiError::too_large(side, "max_input_bytes", config.limits.max_input_bytes));
+            return Err(ApiError::too_large(
+                side,
+                "max_input_bytes",
+                config.limits.max_input_bytes,
+            ));
         }
         out.push(UploadFile { name, path });
     }
@@ -446,19 +489,29 @@ fn validate_model(side: &str, model: &UploadModel, config: &ServeConfig) -> Resu
 /// A pattern must be a PNG or JPEG within the image limits (only its header is read).
 fn check_pattern(path: &Path, config: &ServeConfig) -> Result<(), ApiError> {
     let bad = |detail: String| {
-        ApiError::new(StatusCode::UNPROCESSABLE_ENTITY, "invalid-pattern", "Invalid pattern image", detail)
-            .field("pattern")
+        ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid-pattern",
+            "Invalid pattern image",
+            detail,
+        )
+        .field("pattern")
     };
     let reader = image::ImageReader::open(path)
         .and_then(|r| r.with_guessed_format())
         .map_err(|e| bad(e.to_string()))?;
-    if !matches!(reader.format(), Some(image::ImageFormat::Png | image::ImageFormat::Jpeg)) {
+    if !matches!(
+        reader.format(),
+        Some(image::ImageFormat::Png | image::ImageFormat::Jpeg)
+    ) {
         return Err(bad("not a png or jpeg image".into()));
     }
     let (w, h) = reader.into_dimensions().map_err(|e| bad(e.to_string()))?;
     let side = config.limits.max_image_side;
     if w > side || h > side {
-        return Err(bad(format!("{w}x{h} exceeds max_image_side = {side}")).limit("max_image_side", side));
+        return Err(
+            bad(format!("{w}x{h} exceeds max_image_side = {side}")).limit("max_image_side", side)
+        );
     }
     Ok(())
 }
@@ -468,7 +521,13 @@ fn check_pattern(path: &Path, config: &ServeConfig) -> Result<(), ApiError> {
 pub fn safe_key_name(name: &str, index: usize, taken: &mut HashSet<String>) -> String {
     let mut s: String = name
         .chars()
-        .map(|c| if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') { c } else { '_' })
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') {
+                c
+            } else {
+                '_'
+            }
+        })
         .collect();
     if s.is_empty() || s.starts_with('.') {
         s.insert(0, '_');

@@ -20,15 +20,17 @@ use super::doc::{JobDocument, JobList};
 use super::ingest::{read_upload, safe_key_name, UploadModel};
 use super::problem::ApiError;
 use super::{blocking, AppState};
-use crate::service::model::{
-    JobInputs, JobProgress, JobRecord, JobStatus, ModelFiles,
-};
+use crate::service::model::{JobInputs, JobProgress, JobRecord, JobStatus, ModelFiles};
 use crate::service::store::{BlobStore, CreateOutcome, ListFilter, StoreError};
 
 /// Seconds a client is told to wait before polling a new job.
 const RETRY_AFTER_SECS: u64 = 1;
 
-fn job_response(status: StatusCode, record: &JobRecord, extra: &[(header::HeaderName, String)]) -> Response {
+fn job_response(
+    status: StatusCode,
+    record: &JobRecord,
+    extra: &[(header::HeaderName, String)],
+) -> Response {
     let doc = JobDocument::from_record(record);
     let mut resp = (status, Json(doc)).into_response();
     let h = resp.headers_mut();
@@ -77,7 +79,10 @@ fn model_files(
     let mut taken = HashSet::new();
     let mut files = Vec::with_capacity(model.files.len());
     for (i, f) in model.files.iter().enumerate() {
-        let key = format!("jobs/{id}/inputs/{side}/{}", safe_key_name(&f.name, i, &mut taken));
+        let key = format!(
+            "jobs/{id}/inputs/{side}/{}",
+            safe_key_name(&f.name, i, &mut taken)
+        );
         blobs.put_file(&key, &f.path)?;
         files.push((f.name.clone(), key));
     }
@@ -92,7 +97,10 @@ fn queue_full(state: &AppState) -> ApiError {
         StatusCode::SERVICE_UNAVAILABLE,
         "queue-full",
         "Queue full",
-        format!("{} jobs are waiting; try again later", state.config.queue_len),
+        format!(
+            "{} jobs are waiting; try again later",
+            state.config.queue_len
+        ),
     )
     .limit("queue_len", state.config.queue_len)
     .retry_after(5)
@@ -198,7 +206,11 @@ pub async fn submit(
     match outcome {
         (CreateOutcome::Existing(existing), _) => {
             let location = format!("/v1/jobs/{}", existing.id);
-            Ok(job_response(StatusCode::OK, &existing, &[(header::LOCATION, location)]))
+            Ok(job_response(
+                StatusCode::OK,
+                &existing,
+                &[(header::LOCATION, location)],
+            ))
         }
         (CreateOutcome::Created, record) => {
             state.runner.notify();
@@ -289,8 +301,10 @@ pub async fn list_jobs(
     };
     let limit = q.limit.unwrap_or(50);
     if !(1..=500).contains(&limit) {
-        return Err(ApiError::bad_request("invalid-query", "limit", "must be within 1..=500")
-            .limit("max_page_size", 500));
+        return Err(
+            ApiError::bad_request("invalid-query", "limit", "must be within 1..=500")
+                .limit("max_page_size", 500),
+        );
     }
     let filter = ListFilter {
         status,

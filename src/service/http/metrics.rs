@@ -47,7 +47,11 @@ impl Histogram {
 
     fn render(&self, out: &mut String, name: &str, labels: &str, bounds: &[f64; 10]) {
         for (i, b) in bounds.iter().enumerate() {
-            let _ = writeln!(out, "{name}_bucket{{{labels},le=\"{b}\"}} {}", self.buckets[i]);
+            let _ = writeln!(
+                out,
+                "{name}_bucket{{{labels},le=\"{b}\"}} {}",
+                self.buckets[i]
+            );
         }
         let _ = writeln!(out, "{name}_bucket{{{labels},le=\"+Inf\"}} {}", self.count);
         let _ = writeln!(out, "{name}_sum{{{labels}}} {}", self.sum);
@@ -69,7 +73,8 @@ pub struct Metrics {
 impl Metrics {
     fn record(&self, method: &str, route: &str, status: u16, secs: f64) {
         if let Ok(mut m) = self.requests.lock() {
-            *m.entry((method.to_string(), route.to_string(), status)).or_default() += 1;
+            *m.entry((method.to_string(), route.to_string(), status))
+                .or_default() += 1;
         }
         if let Ok(mut m) = self.latency.lock() {
             m.entry(route.to_string())
@@ -99,7 +104,9 @@ pub async fn track(State(state): State<AppState>, req: Request, next: Next) -> R
 }
 
 fn escape(v: &str) -> String {
-    v.replace('\\', "\\\\").replace('"', "\\\"").replace('\n', "\\n")
+    v.replace('\\', "\\\\")
+        .replace('"', "\\\"")
+        .replace('\n', "\\n")
 }
 
 /// Prometheus metrics.
@@ -109,7 +116,9 @@ pub async fn metrics(State(state): State<AppState>) -> Result<Response, ApiError
     let jobs = state.jobs.clone();
     let counts = blocking(move || jobs.counts()).await?;
     let mut out = String::with_capacity(4096);
-    out.push_str("# HELP retex_http_requests_total HTTP requests by method, route template and status.\n");
+    out.push_str(
+        "# HELP retex_http_requests_total HTTP requests by method, route template and status.\n",
+    );
     out.push_str("# TYPE retex_http_requests_total counter\n");
     if let Ok(m) = state.metrics.requests.lock() {
         for ((method, route, status), n) in m.iter() {
@@ -125,7 +134,12 @@ pub async fn metrics(State(state): State<AppState>) -> Result<Response, ApiError
     if let Ok(m) = state.metrics.latency.lock() {
         for (route, h) in m.iter() {
             let labels = format!("route=\"{}\"", escape(route));
-            h.render(&mut out, "retex_http_request_duration_seconds", &labels, &REQUEST_BUCKETS);
+            h.render(
+                &mut out,
+                "retex_http_request_duration_seconds",
+                &labels,
+                &REQUEST_BUCKETS,
+            );
         }
     }
     out.push_str("# HELP retex_jobs Jobs in the store by status.\n# TYPE retex_jobs gauge\n");
@@ -136,7 +150,12 @@ pub async fn metrics(State(state): State<AppState>) -> Result<Response, ApiError
         JobStatus::Failed,
         JobStatus::Canceled,
     ] {
-        let n: u64 = counts.by_status.iter().filter(|(k, _)| *k == s).map(|(_, n)| *n).sum();
+        let n: u64 = counts
+            .by_status
+            .iter()
+            .filter(|(k, _)| *k == s)
+            .map(|(_, n)| *n)
+            .sum();
         let _ = writeln!(out, "retex_jobs{{status=\"{}\"}} {n}", s.as_str());
     }
     let depth: u64 = counts
@@ -149,16 +168,20 @@ pub async fn metrics(State(state): State<AppState>) -> Result<Response, ApiError
     let _ = writeln!(out, "retex_queue_depth {depth}");
     out.push_str("# HELP retex_queue_capacity Most enqueued jobs before 503.\n# TYPE retex_queue_capacity gauge\n");
     let _ = writeln!(out, "retex_queue_capacity {}", state.config.queue_len);
-    let age = counts
-        .oldest_enqueued
-        .map_or(0.0, |t| (Utc::now() - t).num_milliseconds().max(0) as f64 / 1e3);
+    let age = counts.oldest_enqueued.map_or(0.0, |t| {
+        (Utc::now() - t).num_milliseconds().max(0) as f64 / 1e3
+    });
     out.push_str("# HELP retex_queue_oldest_age_seconds Age of the oldest enqueued job.\n# TYPE retex_queue_oldest_age_seconds gauge\n");
     let _ = writeln!(out, "retex_queue_oldest_age_seconds {age}");
-    out.push_str("# HELP retex_workers_busy Workers running a job.\n# TYPE retex_workers_busy gauge\n");
+    out.push_str(
+        "# HELP retex_workers_busy Workers running a job.\n# TYPE retex_workers_busy gauge\n",
+    );
     let _ = writeln!(out, "retex_workers_busy {}", state.runner.busy_workers());
     out.push_str("# HELP retex_workers Size of the engine pool.\n# TYPE retex_workers gauge\n");
     let _ = writeln!(out, "retex_workers {}", state.config.workers);
-    out.push_str("# HELP retex_stage_duration_seconds Engine stage durations of finished stages.\n");
+    out.push_str(
+        "# HELP retex_stage_duration_seconds Engine stage durations of finished stages.\n",
+    );
     out.push_str("# TYPE retex_stage_duration_seconds histogram\n");
     if let Ok(mut m) = state.metrics.stages.lock() {
         for (stage, secs) in state.runner.stage_durations() {
@@ -166,7 +189,12 @@ pub async fn metrics(State(state): State<AppState>) -> Result<Response, ApiError
         }
         for (stage, h) in m.iter() {
             let labels = format!("stage=\"{}\"", escape(stage));
-            h.render(&mut out, "retex_stage_duration_seconds", &labels, &STAGE_BUCKETS);
+            h.render(
+                &mut out,
+                "retex_stage_duration_seconds",
+                &labels,
+                &STAGE_BUCKETS,
+            );
         }
     }
     let mut resp = out.into_response();

@@ -70,11 +70,17 @@ where
 }
 
 async fn fallback(uri: Uri) -> ApiError {
-    problem::from_status(StatusCode::NOT_FOUND, format!("no route for {}", uri.path()))
+    problem::from_status(
+        StatusCode::NOT_FOUND,
+        format!("no route for {}", uri.path()),
+    )
 }
 
 /// Turns axum's plain-text rejections (bad path parameter, bad query, 405) into problems.
-async fn problem_rejections(req: axum::extract::Request, next: middleware::Next) -> axum::response::Response {
+async fn problem_rejections(
+    req: axum::extract::Request,
+    next: middleware::Next,
+) -> axum::response::Response {
     let resp = next.run(req).await;
     let status = resp.status();
     let is_problem = resp
@@ -84,10 +90,15 @@ async fn problem_rejections(req: axum::extract::Request, next: middleware::Next)
         .is_some_and(|v| v.starts_with(problem::PROBLEM_JSON));
     if (status.is_client_error() || status.is_server_error()) && !is_problem {
         let (parts, body) = resp.into_parts();
-        let text = axum::body::to_bytes(body, 64 << 10).await.unwrap_or_default();
+        let text = axum::body::to_bytes(body, 64 << 10)
+            .await
+            .unwrap_or_default();
         let mut out = problem::from_status(status, String::from_utf8_lossy(&text).into_owned())
             .into_response();
-        for name in [axum::http::header::WWW_AUTHENTICATE, axum::http::header::ALLOW] {
+        for name in [
+            axum::http::header::WWW_AUTHENTICATE,
+            axum::http::header::ALLOW,
+        ] {
             if let Some(v) = parts.headers.get(&name) {
                 out.headers_mut().insert(name, v.clone());
             }
@@ -117,10 +128,16 @@ pub fn router(state: AppState) -> Router {
         .route("/healthz", get(ops::healthz))
         .route("/readyz", get(ops::readyz))
         .route("/metrics", get(metrics::metrics))
-        .route_layer(middleware::from_fn_with_state(state.clone(), metrics::track))
+        .route_layer(middleware::from_fn_with_state(
+            state.clone(),
+            metrics::track,
+        ))
         .fallback(fallback)
         .layer(middleware::from_fn(problem_rejections))
-        .layer(middleware::from_fn_with_state(state.clone(), auth::require_token))
+        .layer(middleware::from_fn_with_state(
+            state.clone(),
+            auth::require_token,
+        ))
         .layer(RequestBodyTimeoutLayer::new(Duration::from_secs(
             config.body_timeout_secs,
         )))
@@ -202,7 +219,10 @@ impl Server {
             tracing::warn!("connections still open after the shutdown deadline");
         }
         let left = deadline.saturating_sub(started.elapsed());
-        self.state.runner.shutdown(left.max(Duration::from_secs(1))).await;
+        self.state
+            .runner
+            .shutdown(left.max(Duration::from_secs(1)))
+            .await;
     }
 }
 

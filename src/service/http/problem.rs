@@ -132,8 +132,8 @@ impl ApiError {
             Some(path) => format!("{side}.{path}"),
             None => side.to_string(),
         };
-        let mut err = Self::new(status, e.kind(), "Invalid model", format!("{side}: {e}"))
-            .field(field);
+        let mut err =
+            Self::new(status, e.kind(), "Invalid model", format!("{side}: {e}")).field(field);
         if let Some((name, value)) = limit {
             err = err.limit(name, value);
         }
@@ -187,9 +187,10 @@ fn ingest_location(e: &IngestError) -> (Option<String>, Option<(&'static str, u6
         ForbiddenUri { what, .. } | InvalidUri { what, .. } | MissingFile { what, .. } => {
             (Some(format!("{what}.uri")), None)
         }
-        DataUriTooLarge { what, max, .. } => {
-            (Some(format!("{what}.uri")), Some(("max_data_uri_bytes", *max)))
-        }
+        DataUriTooLarge { what, max, .. } => (
+            Some(format!("{what}.uri")),
+            Some(("max_data_uri_bytes", *max)),
+        ),
         BufferWithoutData { buffer } | BufferLengthMismatch { buffer, .. } => {
             (Some(format!("buffers[{buffer}]")), None)
         }
@@ -211,8 +212,16 @@ fn ingest_location(e: &IngestError) -> (Option<String>, Option<(&'static str, u6
         InvalidNodeHierarchy { node, .. } | NonFiniteTransform { node } => {
             (Some(format!("nodes[{node}]")), None)
         }
-        NodeTooDeep { node, max, .. } => (Some(format!("nodes[{node}]")), Some(("max_node_depth", *max))),
-        ImageTooLarge { image, width, height, max } => {
+        NodeTooDeep { node, max, .. } => (
+            Some(format!("nodes[{node}]")),
+            Some(("max_node_depth", *max)),
+        ),
+        ImageTooLarge {
+            image,
+            width,
+            height,
+            max,
+        } => {
             let name = if u64::from(*width).max(u64::from(*height)) > *max {
                 "max_image_side"
             } else {
