@@ -14,8 +14,18 @@ use std::time::{Duration, Instant};
 
 use service_common::*;
 
+/// Kills the child when a test fails, so no server outlives it.
+struct Guard(Child);
+
+impl Drop for Guard {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
 /// Starts `retex serve` on port 0 and returns the child and its base URL.
-fn spawn_server(data: &Path) -> (Child, String) {
+fn spawn_server(data: &Path) -> (Guard, String) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_retex"))
         .args([
             "serve",
@@ -41,7 +51,7 @@ fn spawn_server(data: &Path) -> (Child, String) {
         .strip_prefix("retex listening on ")
         .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
         .to_string();
-    (child, addr)
+    (Guard(child), addr)
 }
 
 #[test]
@@ -49,7 +59,7 @@ fn kill_9_mid_job_then_restart_loses_and_duplicates_nothing() {
     let data = tempfile::tempdir().unwrap();
     let (mut child, base) = spawn_server(data.path());
     let mut ids = Vec::new();
-    for size in [1024, 512, 256, 128] {
+    for size in [8192, 512, 256, 128] {
         let r = submit(&base, &toycar_parts(size), &[]);
         assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
         ids.push(r.json()["id"].as_str().unwrap().to_string());
@@ -57,8 +67,8 @@ fn kill_9_mid_job_then_restart_loses_and_duplicates_nothing() {
     // Kill while the first job is processing.
     wait_for(&base, &ids[0], Duration::from_secs(60), |s| s != "enqueued");
     std::thread::sleep(Duration::from_millis(300));
-    child.kill().unwrap(); // SIGKILL
-    child.wait().unwrap();
+    child.0.kill().unwrap(); // SIGKILL
+    child.0.wait().unwrap();
 
     let (mut child, base) = spawn_server(data.path());
     for id in &ids {
@@ -99,10 +109,10 @@ fn kill_9_mid_job_then_restart_loses_and_duplicates_nothing() {
     // SIGTERM: a clean exit within the deadline.
     let t = Instant::now();
     // SAFETY: sending a signal to our own child process.
-    let rc = unsafe { libc::kill(child.id() as i32, libc::SIGTERM) };
+    let rc = unsafe { libc::kill(child.0.id() as i32, libc::SIGTERM) };
     assert_eq!(rc, 0);
     loop {
-        if let Some(status) = child.try_wait().unwrap() {
+        if let Some(status) = child.0.try_wait().unwrap() {
             assert!(status.success(), "exit status {status}");
             break;
         }

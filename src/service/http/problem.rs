@@ -21,8 +21,8 @@ pub const PROBLEM_JSON: &str = "application/problem+json";
 /// An error answer of the API: a [`Problem`] plus optional extra headers.
 #[derive(Debug, Clone)]
 pub struct ApiError {
-    /// The body.
-    pub problem: Problem,
+    /// The body (boxed: errors travel through many `Result`s).
+    pub problem: Box<Problem>,
     /// `Retry-After` seconds, for 503.
     pub retry_after: Option<u64>,
 }
@@ -31,14 +31,14 @@ impl ApiError {
     /// A problem of type `/problems/{kind}`.
     pub fn new(status: StatusCode, kind: &str, title: &str, detail: impl Into<String>) -> Self {
         Self {
-            problem: Problem {
+            problem: Box::new(Problem {
                 kind: format!("/problems/{kind}"),
                 title: title.to_string(),
                 status: status.as_u16(),
                 detail: detail.into(),
                 field: None,
                 limit: None,
-            },
+            }),
             retry_after: None,
         }
     }
@@ -239,7 +239,7 @@ fn ingest_location(e: &IngestError) -> (Option<String>, Option<(&'static str, u6
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
         let status = self.status();
-        let body = serde_json::to_vec(&self.problem).unwrap_or_default();
+        let body = serde_json::to_vec(&*self.problem).unwrap_or_default();
         let mut resp = (status, body).into_response();
         resp.headers_mut()
             .insert(header::CONTENT_TYPE, HeaderValue::from_static(PROBLEM_JSON));
