@@ -1,4 +1,4 @@
-//! `retex` command line: `transfer` runs exactly what a service job runs, `inspect` describes a
+//! `retex` command line: `serve` runs the HTTP job service, `transfer` runs exactly what a service job runs, `inspect` describes a
 //! model and the problems found in it, `bench` measures the pipeline on the shared assets.
 
 mod cli;
@@ -52,6 +52,9 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Run the HTTP job service (see README "Service").
+    #[cfg(feature = "service")]
+    Serve(Box<cli::serve::ServeArgs>),
     /// Measure ingest and whole transfers on the shared assets; prints a Markdown table.
     Bench {
         /// The shared asset folder.
@@ -85,6 +88,8 @@ fn main() -> ExitCode {
         }),
         Command::Inspect { file, json } => cli::inspect::run(&file, json),
         Command::Bench { assets, runs } => cli::bench::run(&assets, runs),
+        #[cfg(feature = "service")]
+        Command::Serve(args) => cli::serve::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -2,4 +2,6 @@
 
 pub mod bench;
 pub mod inspect;
+#[cfg(feature = "service")]
+pub mod serve;
 pub mod transfer;

@@ -4,6 +4,8 @@
 //! Only [`jobs::runner`] knows both worlds: it maps a job to an engine call on a dedicated rayon
 //! pool and passes a [`crate::engine::control::Control`] whose progress the routes read.
 
+pub mod config;
+pub mod http;
 pub mod jobs;
 pub mod model;
 pub mod store;

@@ -1,0 +1,136 @@
+//! `retex serve`: the HTTP job service. Settings come from defaults, then `--config FILE`
+//! (TOML), then `RETEX_*` environment variables, then these flags. On start it prints
+//! `retex listening on http://ADDR` to stdout (tests start it on port 0 and read the address);
+//! SIGTERM or SIGINT shut it down gracefully.
+
+use std::io::Write;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use clap::Args;
+use retex::service::config::ServeConfig;
+use retex::service::http;
+
+/// Flags of `retex serve` (each overrides the config file and the environment).
+#[derive(Args, Debug, Default)]
+pub struct ServeArgs {
+    /// TOML config file (see deploy/retex.example.toml).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Listen address [env RETEX_ADDR; default 127.0.0.1:8080].
+    #[arg(long)]
+    pub addr: Option<SocketAddr>,
+    /// Data directory for jobs.sqlite3 and blobs/ [env RETEX_DATA_DIR; default ./retex-data].
+    #[arg(long)]
+    pub data_dir: Option<PathBuf>,
+    /// Jobs that run at once [env RETEX_WORKERS; default: cores].
+    #[arg(long)]
+    pub workers: Option<usize>,
+    /// Most enqueued jobs before 503 [env RETEX_QUEUE_LEN; default 64].
+    #[arg(long)]
+    pub queue_len: Option<u64>,
+    /// Bearer tokens, comma separated [env RETEX_TOKENS; default none = no auth].
+    #[arg(long, value_delimiter = ',')]
+    pub tokens: Option<Vec<String>>,
+    /// CORS origins, comma separated [env RETEX_CORS_ORIGINS].
+    #[arg(long, value_delimiter = ',')]
+    pub cors_origins: Option<Vec<String>>,
+    /// Seconds finished jobs are kept [env RETEX_TTL_SECS; default 604800].
+    #[arg(long)]
+    pub ttl_secs: Option<u64>,
+    /// Seconds between retention sweeps [default 600].
+    #[arg(long)]
+    pub prune_interval_secs: Option<u64>,
+    /// Seconds a client may stay silent while uploading [env RETEX_BODY_TIMEOUT_SECS; default 30].
+    #[arg(long)]
+    pub body_timeout_secs: Option<u64>,
+    /// Seconds granted to jobs and connections on shutdown [env RETEX_SHUTDOWN_SECS; default 20].
+    #[arg(long)]
+    pub shutdown_secs: Option<u64>,
+    /// Largest request body in bytes [env RETEX_MAX_BODY_BYTES; default 1 GiB].
+    #[arg(long)]
+    pub max_body_bytes: Option<u64>,
+    /// Largest multipart part in bytes [env RETEX_MAX_PART_BYTES; default 512 MiB].
+    #[arg(long)]
+    pub max_part_bytes: Option<u64>,
+    /// Largest output.texture_size [env RETEX_MAX_TEXTURE_SIZE; default 8192].
+    #[arg(long)]
+    pub max_texture_size: Option<u32>,
+    /// Most triangles per model [env RETEX_MAX_TRIANGLES; default 20,000,000].
+    #[arg(long)]
+    pub max_triangles: Option<u64>,
+    /// JSON log lines [env RETEX_LOG_JSON=1].
+    #[arg(long)]
+    pub log_json: bool,
+}
+
+/// Builds the configuration from file, environment and flags.
+pub fn config(args: &ServeArgs) -> Result<ServeConfig, String> {
+    let mut c = match &args.config {
+        Some(path) => ServeConfig::from_file(path).map_err(|e| e.to_string())?,
+        None => ServeConfig::default(),
+    };
+    c.apply_env(|k| std::env::var(k).ok())
+        .map_err(|e| e.to_string())?;
+    macro_rules! flag {
+        ($($name:ident),*) => { $( if let Some(v) = args.$name.clone() { c.$name = v; } )* };
+    }
+    flag!(
+        addr,
+        data_dir,
+        workers,
+        queue_len,
+        tokens,
+        cors_origins,
+        ttl_secs,
+        prune_interval_secs
+    );
+    flag!(
+        body_timeout_secs,
+        shutdown_secs,
+        max_body_bytes,
+        max_part_bytes,
+        max_texture_size
+    );
+    if let Some(v) = args.max_triangles {
+        c.limits.max_triangles = v;
+    }
+    c.log_json |= args.log_json;
+    c.validate().map_err(|e| e.to_string())?;
+    Ok(c)
+}
+
+fn init_tracing(json: bool) {
+    let filter = tracing_subscriber::EnvFilter::try_from_env("RETEX_LOG")
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info,tower_http=info"));
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr);
+    let _ = if json {
+        builder.json().try_init()
+    } else {
+        builder.try_init()
+    };
+}
+
+/// Runs the server until SIGTERM/SIGINT.
+pub fn run(args: &ServeArgs) -> Result<(), String> {
+    let config = config(args)?;
+    init_tracing(config.log_json);
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .thread_name("retex-http")
+        .build()
+        .map_err(|e| format!("tokio runtime: {e}"))?;
+    runtime.block_on(async move {
+        let server = http::start(config).await?;
+        println!("retex listening on http://{}", server.addr);
+        let _ = std::io::stdout().flush();
+        tracing::info!(addr = %server.addr, data_dir = %server.state.config.data_dir.display(), "serving");
+        http::shutdown_signal().await;
+        tracing::info!("shutdown requested; draining");
+        server.shutdown().await;
+        tracing::info!("stopped");
+        Ok(())
+    })
+}

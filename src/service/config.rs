@@ -1,0 +1,300 @@
+//! Configuration of `retex serve`: defaults that serve on a fresh machine, an optional TOML file,
+//! environment variables (`RETEX_*`) and command-line flags, applied in that order (later wins).
+//!
+//! Every limit has a name (`max_body_bytes`, `max_part_bytes`, `max_texture_size`, ...) that the
+//! service repeats in the `limit` of a refusal, so an operator can find the knob to turn.
+//! Durations in the TOML file and in env vars are whole seconds.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+
+use crate::engine::asset::IngestLimits;
+
+/// Everything `retex serve` can be told.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ServeConfig {
+    /// Listen address. Default `127.0.0.1:8080` (env `RETEX_ADDR`).
+    pub addr: SocketAddr,
+    /// Data directory: `jobs.sqlite3` and `blobs/` live here. Default `./retex-data`
+    /// (env `RETEX_DATA_DIR`).
+    pub data_dir: PathBuf,
+    /// Jobs that run at once (size of the engine pool). Default: number of cores
+    /// (env `RETEX_WORKERS`).
+    pub workers: usize,
+    /// Most enqueued jobs; a submission beyond it gets 503. Default 64 (env `RETEX_QUEUE_LEN`).
+    pub queue_len: u64,
+    /// Times a job may be started (crash recovery re-runs count). Default 3.
+    pub max_attempts: u32,
+    /// Bearer tokens; empty means no authentication (env `RETEX_TOKENS`, comma separated).
+    pub tokens: Vec<String>,
+    /// Origins allowed by CORS, e.g. `https://dashboard.example`; empty allows none
+    /// (env `RETEX_CORS_ORIGINS`, comma separated; `*` allows any).
+    pub cors_origins: Vec<String>,
+    /// Seconds a finished job and its files are kept. Default 7 days (env `RETEX_TTL_SECS`).
+    pub ttl_secs: u64,
+    /// Seconds between retention sweeps. Default 600.
+    pub prune_interval_secs: u64,
+    /// Seconds an Idempotency-Key is remembered (at least 24 h). Default 86400.
+    pub idempotency_secs: u64,
+    /// Seconds a client may stay silent while sending a request body. Default 30
+    /// (env `RETEX_BODY_TIMEOUT_SECS`).
+    pub body_timeout_secs: u64,
+    /// Seconds granted on SIGTERM/SIGINT to running jobs and open connections. Default 20
+    /// (env `RETEX_SHUTDOWN_SECS`).
+    pub shutdown_secs: u64,
+    /// Milliseconds between progress snapshots of a running job. Default 250.
+    pub progress_interval_ms: u64,
+    /// Largest request body in bytes. Default 1 GiB (env `RETEX_MAX_BODY_BYTES`).
+    pub max_body_bytes: u64,
+    /// Largest single multipart part (a file, after zip extraction) in bytes. Default 512 MiB
+    /// (env `RETEX_MAX_PART_BYTES`).
+    pub max_part_bytes: u64,
+    /// Most files in one model (parts plus zip entries). Default 256.
+    pub max_files: usize,
+    /// Largest `output.texture_size` a job may ask for. Default 8192
+    /// (env `RETEX_MAX_TEXTURE_SIZE`).
+    pub max_texture_size: u32,
+    /// Limits applied when validating uploads and when the job loads them again
+    /// (`max_triangles`, `max_image_pixels`, ...).
+    pub limits: IngestLimits,
+    /// JSON log lines instead of text (env `RETEX_LOG_JSON=1`).
+    pub log_json: bool,
+}
+
+impl Default for ServeConfig {
+    fn default() -> Self {
+        Self {
+            addr: SocketAddr::from(([127, 0, 0, 1], 8080)),
+            data_dir: PathBuf::from("./retex-data"),
+            workers: std::thread::available_parallelism().map_or(2, |n| n.get()),
+            queue_len: 64,
+            max_attempts: 3,
+            tokens: Vec::new(),
+            cors_origins: Vec::new(),
+            ttl_secs: 7 * 24 * 3600,
+            prune_interval_secs: 600,
+            idempotency_secs: 24 * 3600,
+            body_timeout_secs: 30,
+            shutdown_secs: 20,
+            progress_interval_ms: 250,
+            max_body_bytes: 1 << 30,
+            max_part_bytes: 512 << 20,
+            max_files: 256,
+            max_texture_size: 8192,
+            limits: IngestLimits::default(),
+            log_json: false,
+        }
+    }
+}
+
+/// A configuration that cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The TOML file could not be read.
+    #[error("config file {path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// The TOML file does not parse or has unknown keys.
+    #[error("config file {path}: {message}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// The parser's message.
+        message: String,
+    },
+    /// An environment variable with a bad value.
+    #[error("environment variable {name}: {message}")]
+    Env {
+        /// The variable.
+        name: &'static str,
+        /// Why.
+        message: String,
+    },
+    /// A value outside its range.
+    #[error("{field}: {message}")]
+    Invalid {
+        /// The setting.
+        field: &'static str,
+        /// Why.
+        message: String,
+    },
+}
+
+impl ServeConfig {
+    /// Parses a TOML document (unknown keys are errors); missing keys keep their defaults.
+    pub fn from_toml(text: &str, path: &Path) -> Result<Self, ConfigError> {
+        let config: ServeConfig = toml::from_str(text).map_err(|e| ConfigError::Parse {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// Reads a TOML file.
+    pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Self::from_toml(&text, path)
+    }
+
+    /// Applies `RETEX_*` variables read through `get` (the process environment in production,
+    /// a map in tests).
+    pub fn apply_env(&mut self, get: impl Fn(&str) -> Option<String>) -> Result<(), ConfigError> {
+        fn parse<T: std::str::FromStr>(name: &'static str, v: &str) -> Result<T, ConfigError>
+        where
+            T::Err: std::fmt::Display,
+        {
+            v.trim().parse().map_err(|e: T::Err| ConfigError::Env {
+                name,
+                message: format!("{v:?}: {e}"),
+            })
+        }
+        let list = |v: String| -> Vec<String> {
+            v.split(',')
+                .map(str::trim)
+                .filter(|s| !s.is_empty())
+                .map(String::from)
+                .collect()
+        };
+        if let Some(v) = get("RETEX_ADDR") {
+            self.addr = parse("RETEX_ADDR", &v)?;
+        }
+        if let Some(v) = get("RETEX_DATA_DIR") {
+            self.data_dir = PathBuf::from(v);
+        }
+        if let Some(v) = get("RETEX_WORKERS") {
+            self.workers = parse("RETEX_WORKERS", &v)?;
+        }
+        if let Some(v) = get("RETEX_QUEUE_LEN") {
+            self.queue_len = parse("RETEX_QUEUE_LEN", &v)?;
+        }
+        if let Some(v) = get("RETEX_TOKENS") {
+            self.tokens = list(v);
+        }
+        if let Some(v) = get("RETEX_CORS_ORIGINS") {
+            self.cors_origins = list(v);
+        }
+        if let Some(v) = get("RETEX_TTL_SECS") {
+            self.ttl_secs = parse("RETEX_TTL_SECS", &v)?;
+        }
+        if let Some(v) = get("RETEX_BODY_TIMEOUT_SECS") {
+            self.body_timeout_secs = parse("RETEX_BODY_TIMEOUT_SECS", &v)?;
+        }
+        if let Some(v) = get("RETEX_SHUTDOWN_SECS") {
+            self.shutdown_secs = parse("RETEX_SHUTDOWN_SECS", &v)?;
+        }
+        if let Some(v) = get("RETEX_MAX_BODY_BYTES") {
+            self.max_body_bytes = parse("RETEX_MAX_BODY_BYTES", &v)?;
+        }
+        if let Some(v) = get("RETEX_MAX_PART_BYTES") {
+            self.max_part_bytes = parse("RETEX_MAX_PART_BYTES", &v)?;
+        }
+        if let Some(v) = get("RETEX_MAX_TEXTURE_SIZE") {
+            self.max_texture_size = parse("RETEX_MAX_TEXTURE_SIZE", &v)?;
+        }
+        if let Some(v) = get("RETEX_MAX_TRIANGLES") {
+            self.limits.max_triangles = parse("RETEX_MAX_TRIANGLES", &v)?;
+        }
+        if let Some(v) = get("RETEX_LOG_JSON") {
+            self.log_json = matches!(v.trim(), "1" | "true" | "yes");
+        }
+        Ok(())
+    }
+
+    /// Checks ranges.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let bad = |field, message: &str| {
+            Err(ConfigError::Invalid {
+                field,
+                message: message.to_string(),
+            })
+        };
+        if self.workers == 0 {
+            return bad("workers", "must be at least 1");
+        }
+        if self.queue_len == 0 {
+            return bad("queue_len", "must be at least 1");
+        }
+        if self.max_attempts == 0 {
+            return bad("max_attempts", "must be at least 1");
+        }
+        if !(16..=8192).contains(&self.max_texture_size) {
+            return bad("max_texture_size", "must be within 16..=8192");
+        }
+        if self.max_part_bytes == 0 || self.max_body_bytes == 0 {
+            return bad("max_body_bytes", "body and part limits must be positive");
+        }
+        if self.idempotency_secs < 24 * 3600 {
+            return bad("idempotency_secs", "keys are kept at least 24 h (86400)");
+        }
+        if self.prune_interval_secs == 0 || self.progress_interval_ms == 0 {
+            return bad("prune_interval_secs", "intervals must be positive");
+        }
+        if self.tokens.iter().any(|t| t.len() < 8) {
+            return bad("tokens", "each token needs at least 8 characters");
+        }
+        Ok(())
+    }
+
+    /// Time-to-live of finished jobs.
+    pub fn ttl(&self) -> Duration {
+        Duration::from_secs(self.ttl_secs)
+    }
+
+    /// Path of the SQLite job database.
+    pub fn db_path(&self) -> PathBuf {
+        self.data_dir.join("jobs.sqlite3")
+    }
+
+    /// Root of the blob store.
+    pub fn blob_dir(&self) -> PathBuf {
+        self.data_dir.join("blobs")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::HashMap;
+
+    #[test]
+    fn defaults_are_valid_and_env_overrides() {
+        let mut c = ServeConfig::default();
+        c.validate().unwrap();
+        let env: HashMap<&str, &str> = [
+            ("RETEX_ADDR", "0.0.0.0:9000"),
+            ("RETEX_TOKENS", "abcdefgh, ijklmnopq ,"),
+            ("RETEX_MAX_TRIANGLES", "1000"),
+        ]
+        .into();
+        c.apply_env(|k| env.get(k).map(|v| v.to_string())).unwrap();
+        assert_eq!(c.addr.port(), 9000);
+        assert_eq!(c.tokens, ["abcdefgh", "ijklmnopq"]);
+        assert_eq!(c.limits.max_triangles, 1000);
+        let e = c
+            .apply_env(|k| (k == "RETEX_WORKERS").then(|| "many".to_string()))
+            .unwrap_err();
+        assert!(e.to_string().contains("RETEX_WORKERS"), "{e}");
+    }
+
+    #[test]
+    fn toml_rejects_unknown_keys_and_bad_ranges() {
+        let p = Path::new("x.toml");
+        let c = ServeConfig::from_toml("workers = 3\n[limits]\nmax_triangles = 5\n", p).unwrap();
+        assert_eq!((c.workers, c.limits.max_triangles), (3, 5));
+        assert!(ServeConfig::from_toml("wrkers = 3", p).is_err());
+        assert!(ServeConfig::from_toml("workers = 0", p).is_err());
+        assert!(ServeConfig::from_toml("max_texture_size = 9000", p).is_err());
+    }
+}

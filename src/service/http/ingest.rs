@@ -1,0 +1,558 @@
+//! Multipart ingest of `POST /v1/jobs`: parts are streamed to temporary files (in the blob
+//! store's temp folder, so accepting them is a rename) under a per-part cap, hashed for
+//! Idempotency-Key checks, grouped into models (one GLB; a .gltf plus its files as further parts
+//! named by their filenames; or one zip of them), and validated before anything is accepted:
+//! the constraints parse, each model loads under the ingest limits (on a blocking thread, never
+//! a tokio worker), the texture size is within the configured maximum.
+
+use std::collections::HashSet;
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+
+use axum::extract::multipart::{Field, Multipart, MultipartError};
+use axum::http::StatusCode;
+use sha2::{Digest, Sha256};
+
+use super::problem::ApiError;
+use crate::engine::asset::constraints::{Constraints, MAX_CONSTRAINTS_BYTES};
+use crate::engine::asset::{load, BlobSet};
+use crate::service::config::ServeConfig;
+
+/// One uploaded file, already on disk.
+#[derive(Debug, Clone)]
+pub struct UploadFile {
+    /// Name inside the model's file set (the part's filename, or the zip entry's path).
+    pub name: String,
+    /// The temporary file.
+    pub path: PathBuf,
+}
+
+/// A model of the upload: its main file and every file of it.
+#[derive(Debug, Clone)]
+pub struct UploadModel {
+    /// Name of the main .glb/.gltf.
+    pub main: String,
+    /// Files, the main one included.
+    pub files: Vec<UploadFile>,
+}
+
+/// A complete, validated submission, still in temporary files.
+#[derive(Debug)]
+pub struct Upload {
+    /// The textured source.
+    pub source: UploadModel,
+    /// The target.
+    pub target: UploadModel,
+    /// The constraints document, verbatim.
+    pub constraints_bytes: Vec<u8>,
+    /// The parsed constraints.
+    pub constraints: Constraints,
+    /// The pattern image, if given.
+    pub pattern: Option<UploadFile>,
+    /// Hex SHA-256 over every part (name, filename, content).
+    pub request_hash: String,
+    /// Owns the temporary files; dropping it deletes whatever was not moved into the store.
+    pub _temp: TempFiles,
+}
+
+/// Temporary files of one upload, directly inside the blob store's temp folder (so the store
+/// can take them by rename); those still there when this is dropped are deleted.
+#[derive(Debug)]
+pub struct TempFiles {
+    dir: PathBuf,
+    prefix: String,
+    made: std::sync::Mutex<Vec<PathBuf>>,
+}
+
+impl TempFiles {
+    fn new(dir: &Path) -> Self {
+        Self {
+            dir: dir.to_path_buf(),
+            prefix: format!("upload-{}", uuid::Uuid::new_v4().simple()),
+            made: Default::default(),
+        }
+    }
+
+    /// A new file path, removed on drop unless moved away.
+    fn path(&self, tag: &str) -> PathBuf {
+        let p = self.dir.join(format!("{}-{tag}", self.prefix));
+        if let Ok(mut m) = self.made.lock() {
+            m.push(p.clone());
+        }
+        p
+    }
+}
+
+impl Drop for TempFiles {
+    fn drop(&mut self) {
+        if let Ok(m) = self.made.lock() {
+            for p in m.iter() {
+                let _ = std::fs::remove_file(p);
+            }
+        }
+    }
+}
+
+fn multipart_error(e: MultipartError, config: &ServeConfig) -> ApiError {
+    let status = e.status();
+    if status == StatusCode::PAYLOAD_TOO_LARGE {
+        return ApiError::too_large("body", "max_body_bytes", config.max_body_bytes);
+    }
+    let text = e.body_text();
+    if text.to_ascii_lowercase().contains("timed out") || text.contains("timeout") {
+        return ApiError::new(
+            StatusCode::REQUEST_TIMEOUT,
+            "body-timeout",
+            "Request body timeout",
+            format!("the client sent nothing for {} s", config.body_timeout_secs),
+        )
+        .limit("body_timeout_secs", config.body_timeout_secs);
+    }
+    ApiError::bad_request("invalid-multipart", "body", text)
+}
+
+/// Checks a part's filename: a relative path of normal segments.
+fn check_name(part: &str, name: &str) -> Result<(), ApiError> {
+    let bad = name.is_empty()
+        || name.starts_with('/')
+        || name.contains('\\')
+        || name.contains('\0')
+        || name
+            .split('/')
+            .any(|s| s.is_empty() || s == "." || s == "..");
+    if bad {
+        return Err(ApiError::bad_request(
+            "invalid-filename",
+            part,
+            format!("file name {name:?} must be a relative path without '..'"),
+        ));
+    }
+    Ok(())
+}
+
+/// Streams one part to `path`, hashing it; refuses more than `cap` bytes.
+async fn save_part(
+    field: &mut Field<'_>,
+    path: &Path,
+    part: &str,
+    cap: u64,
+    config: &ServeConfig,
+) -> Result<(u64, [u8; 32]), ApiError> {
+    let mut file = std::fs::File::create(path).map_err(ApiError::internal)?;
+    let mut hasher = Sha256::new();
+    let mut len = 0u64;
+    while let Some(chunk) = field
+        .chunk()
+        .await
+        .map_err(|e| multipart_error(e, config))?
+    {
+        len += chunk.len() as u64;
+        if len > cap {
+            let limit = if part == "constraints" {
+                "max_constraints_bytes"
+            } else {
+                "max_part_bytes"
+            };
+            return Err(ApiError::too_large(part, limit, cap));
+        }
+        hasher.update(&chunk);
+        // Small synchronous writes into the page cache; the fsync happens when the blob store
+        // takes the file.
+        file.write_all(&chunk).map_err(ApiError::internal)?;
+    }
+    Ok((len, hasher.finalize().into()))
+}
+
+/// Reads the whole multipart body into temporary files and validates it.
+pub async fn read_upload(
+    mut multipart: Multipart,
+    config: &ServeConfig,
+    temp_root: &Path,
+) -> Result<Upload, ApiError> {
+    std::fs::create_dir_all(temp_root).map_err(ApiError::internal)?;
+    let temp = std::sync::Arc::new(TempFiles::new(temp_root));
+    let mut request = Sha256::new();
+    let mut source = Vec::new();
+    let mut target = Vec::new();
+    let mut constraints: Option<PathBuf> = None;
+    let mut pattern: Option<UploadFile> = None;
+    let mut count = 0usize;
+    while let Some(mut field) = multipart
+        .next_field()
+        .await
+        .map_err(|e| multipart_error(e, config))?
+    {
+        let part = field.name().unwrap_or_default().to_string();
+        if !matches!(
+            part.as_str(),
+            "source" | "target" | "constraints" | "pattern"
+        ) {
+            return Err(ApiError::bad_request(
+                "unknown-part",
+                &part,
+                format!("unknown part {part:?}: expected source, target, constraints, pattern"),
+            ));
+        }
+        count += 1;
+        if count > 2 * config.max_files + 2 {
+            return Err(ApiError::new(
+                StatusCode::PAYLOAD_TOO_LARGE,
+                "too-many-files",
+                "Too many files",
+                format!("more than {} files per model", config.max_files),
+            )
+            .field(part)
+            .limit("max_files", config.max_files as u64));
+        }
+        let name = field
+            .file_name()
+            .map(str::to_string)
+            .unwrap_or_else(|| part.clone());
+        check_name(&part, &name)?;
+        let path = temp.path(&format!("part-{count}"));
+        let cap = if part == "constraints" {
+            MAX_CONSTRAINTS_BYTES as u64
+        } else {
+            config.max_part_bytes
+        };
+        let (_, digest) = save_part(&mut field, &path, &part, cap, config).await?;
+        for piece in [part.as_bytes(), &[0], name.as_bytes(), &[0], &digest] {
+            request.update(piece);
+        }
+        let file = UploadFile { name, path };
+        match part.as_str() {
+            "source" => source.push(file),
+            "target" => target.push(file),
+            "constraints" | "pattern" if constraints.is_some() && part == "constraints" => {
+                return Err(ApiError::bad_request(
+                    "duplicate-part",
+                    &part,
+                    "constraints given twice",
+                ))
+            }
+            "constraints" => constraints = Some(file.path),
+            _ if pattern.is_some() => {
+                return Err(ApiError::bad_request(
+                    "duplicate-part",
+                    &part,
+                    "pattern given twice",
+                ))
+            }
+            _ => pattern = Some(file),
+        }
+    }
+    let missing = |part: &str| {
+        ApiError::bad_request(
+            "missing-part",
+            part,
+            format!("the multipart body has no {part:?} part"),
+        )
+    };
+    if source.is_empty() {
+        return Err(missing("source"));
+    }
+    if target.is_empty() {
+        return Err(missing("target"));
+    }
+    let constraints_path = constraints.ok_or_else(|| missing("constraints"))?;
+    let constraints_bytes = std::fs::read(&constraints_path).map_err(ApiError::internal)?;
+    let parsed =
+        Constraints::from_json(&constraints_bytes).map_err(|e| ApiError::constraints(&e))?;
+    if parsed.output.texture_size > config.max_texture_size {
+        return Err(ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "texture-size-over-limit",
+            "Texture size over the limit",
+            format!(
+                "output.texture_size {} exceeds max_texture_size = {}",
+                parsed.output.texture_size, config.max_texture_size
+            ),
+        )
+        .field("constraints.output.texture_size")
+        .limit("max_texture_size", config.max_texture_size));
+    }
+
+    let work = temp.clone();
+    let cfg = config.clone();
+    let pattern_check = pattern.clone();
+    let validated = tokio::task::spawn_blocking(move || -> Result<_, ApiError> {
+        let source = assemble("source", source, &work, &cfg)?;
+        let target = assemble("target", target, &work, &cfg)?;
+        if let Some(p) = &pattern_check {
+            check_pattern(&p.path, &cfg)?;
+        }
+        // Both models load under the limits, in parallel (the loader itself uses rayon).
+        let (a, b) = rayon::join(
+            || validate_model("source", &source, &cfg),
+            || validate_model("target", &target, &cfg),
+        );
+        a?;
+        b?;
+        Ok((source, target))
+    })
+    .await
+    .map_err(ApiError::internal)??;
+    Ok(Upload {
+        source: validated.0,
+        target: validated.1,
+        constraints_bytes,
+        constraints: parsed,
+        pattern,
+        request_hash: hex::encode(request.finalize()),
+        _temp: std::sync::Arc::try_unwrap(temp)
+            .map_err(|_| ApiError::internal("temp files still shared"))?,
+    })
+}
+
+fn is_zip(file: &UploadFile) -> bool {
+    if file.name.to_ascii_lowercase().ends_with(".zip") {
+        return true;
+    }
+    let mut magic = [0u8; 4];
+    std::fs::File::open(&file.path)
+        .and_then(|mut f| f.read_exact(&mut magic))
+        .is_ok()
+        && magic == *b"PK\x03\x04"
+}
+
+fn is_main(name: &str) -> bool {
+    let lower = name.to_ascii_lowercase();
+    lower.ends_with(".glb") || lower.ends_with(".gltf")
+}
+
+/// Groups the parts of one side into a model: unpacks a zip, finds the main file and makes
+/// every name relative to the main file's folder.
+fn assemble(
+    side: &str,
+    mut files: Vec<UploadFile>,
+    temp: &TempFiles,
+    config: &ServeConfig,
+) -> Result<UploadModel, ApiError> {
+    if files.len() == 1 && is_zip(&files[0]) {
+        files = unzip(side, &files[0], temp, config)?;
+    }
+    if files.len() > config.max_files {
+        return Err(ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "too-many-files",
+            "Too many files",
+            format!(
+                "{side} has {} files, over max_files = {}",
+                files.len(),
+                config.max_files
+            ),
+        )
+        .field(side)
+        .limit("max_files", config.max_files as u64));
+    }
+    let mains: Vec<&UploadFile> = files.iter().filter(|f| is_main(&f.name)).collect();
+    let main = match (mains.as_slice(), files.as_slice()) {
+        ([one], _) => one.name.clone(),
+        ([], [only]) => only.name.clone(),
+        ([], _) => {
+            return Err(ApiError::bad_request(
+                "no-main-file",
+                side,
+                format!("{side} has several files but no .glb or .gltf among them"),
+            ))
+        }
+        (many, _) => {
+            return Err(ApiError::bad_request(
+                "ambiguous-main-file",
+                side,
+                format!(
+                    "{side} has {} .glb/.gltf files; send one model per side",
+                    many.len()
+                ),
+            ))
+        }
+    };
+    let mut seen = HashSet::new();
+    for f in &files {
+        if !seen.insert(f.name.clone()) {
+            return Err(ApiError::bad_request(
+                "duplicate-file",
+                side,
+                format!("{side} has two files named {:?}", f.name),
+            ));
+        }
+    }
+    // URIs resolve against the main file's folder: names become relative to it.
+    let prefix = match main.rfind('/') {
+        Some(i) => main[..=i].to_string(),
+        None => String::new(),
+    };
+    let files = files
+        .into_iter()
+        .filter_map(|f| {
+            let rel = f.name.strip_prefix(&prefix)?.to_string();
+            Some(UploadFile {
+                name: rel,
+                path: f.path,
+            })
+        })
+        .collect();
+    Ok(UploadModel {
+        main: main[prefix.len()..].to_string(),
+        files,
+    })
+}
+
+/// Extracts a zip's files (no directories, no paths leaving the archive) under the caps.
+fn unzip(
+    side: &str,
+    zip_file: &UploadFile,
+    temp: &TempFiles,
+    config: &ServeConfig,
+) -> Result<Vec<UploadFile>, ApiError> {
+    let bad = |detail: String| {
+        ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid-zip",
+            "Invalid zip",
+            detail,
+        )
+        .field(side)
+    };
+    let reader = std::fs::File::open(&zip_file.path).map_err(ApiError::internal)?;
+    let mut archive = zip::ZipArchive::new(reader).map_err(|e| bad(format!("{side}: {e}")))?;
+    if archive.len() > config.max_files {
+        return Err(ApiError::new(
+            StatusCode::PAYLOAD_TOO_LARGE,
+            "too-many-files",
+            "Too many files",
+            format!(
+                "{side} zip has {} entries, over max_files = {}",
+                archive.len(),
+                config.max_files
+            ),
+        )
+        .field(side)
+        .limit("max_files", config.max_files as u64));
+    }
+    let mut out = Vec::new();
+    let mut total = 0u64;
+    for i in 0..archive.len() {
+        let mut entry = archive
+            .by_index(i)
+            .map_err(|e| bad(format!("{side}: entry {i}: {e}")))?;
+        if entry.is_dir() {
+            continue;
+        }
+        let Some(rel) = entry.enclosed_name() else {
+            return Err(ApiError::bad_request(
+                "invalid-filename",
+                side,
+                format!("zip entry {:?} leaves the archive", entry.name()),
+            ));
+        };
+        let name = rel.to_string_lossy().replace('\\', "/");
+        check_name(side, &name)?;
+        let path = temp.path(&format!("{side}-zip-{i}"));
+        let mut file = std::fs::File::create(&path).map_err(ApiError::internal)?;
+        // Never trust the declared size: copy at most cap + 1 bytes.
+        let copied = std::io::copy(&mut (&mut entry).take(config.max_part_bytes + 1), &mut file)
+            .map_err(|e| bad(format!("{side}: {name}: {e}")))?;
+        if copied > config.max_part_bytes {
+            return Err(ApiError::too_large(
+                side,
+                "max_part_bytes",
+                config.max_part_bytes,
+            ));
+        }
+        total += copied;
+        if total > config.limits.max_input_bytes {
+            return Err(ApiError::too_large(
+                side,
+                "max_input_bytes",
+                config.limits.max_input_bytes,
+            ));
+        }
+        out.push(UploadFile { name, path });
+    }
+    Ok(out)
+}
+
+/// Loads a model under the configured limits; the loaded asset is dropped (the job loads it
+/// again on the engine pool).
+fn validate_model(side: &str, model: &UploadModel, config: &ServeConfig) -> Result<(), ApiError> {
+    let mut blobs = BlobSet::new();
+    for f in &model.files {
+        let bytes = std::fs::read(&f.path).map_err(ApiError::internal)?;
+        blobs.insert(f.name.clone(), bytes);
+    }
+    load(&model.main, &blobs, &config.limits)
+        .map(drop)
+        .map_err(|e| ApiError::ingest(side, &e))
+}
+
+/// A pattern must be a PNG or JPEG within the image limits (only its header is read).
+fn check_pattern(path: &Path, config: &ServeConfig) -> Result<(), ApiError> {
+    let bad = |detail: String| {
+        ApiError::new(
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "invalid-pattern",
+            "Invalid pattern image",
+            detail,
+        )
+        .field("pattern")
+    };
+    let reader = image::ImageReader::open(path)
+        .and_then(|r| r.with_guessed_format())
+        .map_err(|e| bad(e.to_string()))?;
+    if !matches!(
+        reader.format(),
+        Some(image::ImageFormat::Png | image::ImageFormat::Jpeg)
+    ) {
+        return Err(bad("not a png or jpeg image".into()));
+    }
+    let (w, h) = reader.into_dimensions().map_err(|e| bad(e.to_string()))?;
+    let side = config.limits.max_image_side;
+    if w > side || h > side {
+        return Err(
+            bad(format!("{w}x{h} exceeds max_image_side = {side}")).limit("max_image_side", side)
+        );
+    }
+    Ok(())
+}
+
+/// A blob key segment for a file name: `[A-Za-z0-9._-]` only, not starting with a dot,
+/// unique within `taken`.
+pub fn safe_key_name(name: &str, index: usize, taken: &mut HashSet<String>) -> String {
+    let mut s: String = name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-') {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if s.is_empty() || s.starts_with('.') {
+        s.insert(0, '_');
+    }
+    if !taken.insert(s.clone()) {
+        s = format!("{index}-{s}");
+        taken.insert(s.clone());
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_are_checked_and_made_safe() {
+        assert!(check_name("source", "textures/a.png").is_ok());
+        for bad in ["../x.bin", "/etc/passwd", "a/../../b", "a\\b", ""] {
+            assert!(check_name("source", bad).is_err(), "{bad}");
+        }
+        let mut taken = HashSet::new();
+        assert_eq!(safe_key_name("Fox.bin", 0, &mut taken), "Fox.bin");
+        assert_eq!(safe_key_name("tex/a b.png", 1, &mut taken), "tex_a_b.png");
+        assert_eq!(safe_key_name("tex_a b.png", 2, &mut taken), "2-tex_a_b.png");
+        assert_eq!(safe_key_name("..", 3, &mut taken), "_..");
+    }
+}

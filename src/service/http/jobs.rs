@@ -1,0 +1,367 @@
+//! Job routes: submit (`POST /v1/jobs`), read (`GET /v1/jobs/{id}` with ETag/304), list
+//! (`GET /v1/jobs`), cancel (`POST /v1/jobs/{id}/cancel`) and delete (`DELETE /v1/jobs/{id}`).
+//!
+//! A submission is validated completely, its files are moved into the blob store under
+//! `jobs/<id>/inputs/...` and its record is committed before `202 Accepted` is sent, so an
+//! accepted job survives `kill -9` from the moment the client sees the answer.
+
+use std::collections::HashSet;
+
+use axum::extract::{Multipart, Path, Query, State};
+use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use chrono::{DateTime, Utc};
+use serde::Deserialize;
+use utoipa::IntoParams;
+use uuid::Uuid;
+
+use super::doc::{JobDocument, JobList};
+use super::ingest::{read_upload, safe_key_name, UploadModel};
+use super::problem::ApiError;
+use super::{blocking, AppState};
+use crate::service::model::{JobInputs, JobProgress, JobRecord, JobStatus, ModelFiles};
+use crate::service::store::{BlobStore, CreateOutcome, ListFilter, StoreError};
+
+/// Seconds a client is told to wait before polling a new job.
+const RETRY_AFTER_SECS: u64 = 1;
+
+fn job_response(
+    status: StatusCode,
+    record: &JobRecord,
+    extra: &[(header::HeaderName, String)],
+) -> Response {
+    let doc = JobDocument::from_record(record);
+    let mut resp = (status, Json(doc)).into_response();
+    let h = resp.headers_mut();
+    if let Ok(v) = HeaderValue::from_str(&etag(record)) {
+        h.insert(header::ETAG, v);
+    }
+    h.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
+    for (name, value) in extra {
+        if let Ok(v) = HeaderValue::from_str(value) {
+            h.insert(name.clone(), v);
+        }
+    }
+    resp
+}
+
+/// The ETag of a job document: its revision.
+pub fn etag(record: &JobRecord) -> String {
+    format!("\"r{}\"", record.revision)
+}
+
+/// Whether `If-None-Match` names `tag` (or `*`); weak comparison (RFC 9110 §13.1.2).
+pub fn if_none_match(headers: &HeaderMap, tag: &str) -> bool {
+    let want = tag.trim_start_matches("W/");
+    headers
+        .get_all(header::IF_NONE_MATCH)
+        .iter()
+        .filter_map(|v| v.to_str().ok())
+        .flat_map(|v| v.split(','))
+        .map(str::trim)
+        .any(|t| t == "*" || t.trim_start_matches("W/") == want)
+}
+
+async fn load_job(state: &AppState, id: Uuid) -> Result<JobRecord, ApiError> {
+    let jobs = state.jobs.clone();
+    blocking(move || jobs.get(id))
+        .await?
+        .ok_or_else(|| ApiError::job_not_found(id))
+}
+
+fn model_files(
+    side: &str,
+    id: Uuid,
+    model: &UploadModel,
+    blobs: &dyn BlobStore,
+) -> Result<ModelFiles, StoreError> {
+    let mut taken = HashSet::new();
+    let mut files = Vec::with_capacity(model.files.len());
+    for (i, f) in model.files.iter().enumerate() {
+        let key = format!(
+            "jobs/{id}/inputs/{side}/{}",
+            safe_key_name(&f.name, i, &mut taken)
+        );
+        blobs.put_file(&key, &f.path)?;
+        files.push((f.name.clone(), key));
+    }
+    Ok(ModelFiles {
+        main: model.main.clone(),
+        files,
+    })
+}
+
+fn queue_full(state: &AppState) -> ApiError {
+    ApiError::new(
+        StatusCode::SERVICE_UNAVAILABLE,
+        "queue-full",
+        "Queue full",
+        format!(
+            "{} jobs are waiting; try again later",
+            state.config.queue_len
+        ),
+    )
+    .limit("queue_len", state.config.queue_len)
+    .retry_after(5)
+}
+
+async fn queue_depth(state: &AppState) -> Result<u64, ApiError> {
+    let jobs = state.jobs.clone();
+    let counts = blocking(move || jobs.counts()).await?;
+    Ok(counts
+        .by_status
+        .iter()
+        .filter(|(s, _)| *s == JobStatus::Enqueued)
+        .map(|(_, n)| *n)
+        .sum())
+}
+
+/// Submit a job.
+#[utoipa::path(post, path = "/v1/jobs", tag = "jobs",
+    request_body(content = super::doc::SubmitForm, content_type = "multipart/form-data"),
+    params(("Idempotency-Key" = Option<String>, Header, description = "Retry-safe submission key (kept at least 24 h)")),
+    responses(
+        (status = 202, description = "Accepted; `Location` names the job", body = JobDocument),
+        (status = 200, description = "Replay of an Idempotency-Key: the job created first", body = JobDocument),
+        (status = 400, description = "Malformed multipart body", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+        (status = 413, description = "A size limit was exceeded (named in `limit`)", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+        (status = 422, description = "Invalid model or constraints, or Idempotency-Key reused", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+        (status = 503, description = "Queue full; see Retry-After", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+    ))]
+pub async fn submit(
+    State(state): State<AppState>,
+    headers: HeaderMap,
+    multipart: Multipart,
+) -> Result<Response, ApiError> {
+    let key = match headers.get("idempotency-key") {
+        None => None,
+        Some(v) => match v.to_str() {
+            Ok(s) if !s.is_empty() && s.len() <= 255 => Some(s.to_string()),
+            _ => {
+                return Err(ApiError::bad_request(
+                    "invalid-idempotency-key",
+                    "Idempotency-Key",
+                    "must be 1..=255 visible ASCII characters",
+                ))
+            }
+        },
+    };
+    if queue_depth(&state).await? >= state.config.queue_len {
+        return Err(queue_full(&state));
+    }
+    let upload = read_upload(multipart, &state.config, &state.blobs.temp_dir()).await?;
+    let id = Uuid::now_v7();
+    let record = JobRecord {
+        id,
+        status: JobStatus::Enqueued,
+        method: upload.constraints.method.as_str().to_string(),
+        progress: JobProgress::default(),
+        created_at: Utc::now(),
+        started_at: None,
+        finished_at: None,
+        error: None,
+        report: None,
+        attempts: 0,
+        idempotency_key: key,
+        request_hash: upload.request_hash.clone(),
+        inputs: JobInputs::default(),
+        artifacts: Vec::new(),
+        revision: 0,
+    };
+    let (jobs, blobs) = (state.jobs.clone(), state.blobs.clone());
+    let outcome = blocking(move || {
+        let mut record = record;
+        let stored = (|| {
+            let source = model_files("source", id, &upload.source, blobs.as_ref())?;
+            let target = model_files("target", id, &upload.target, blobs.as_ref())?;
+            let constraints = format!("jobs/{id}/inputs/constraints.json");
+            blobs.put(&constraints, &upload.constraints_bytes)?;
+            let pattern = match &upload.pattern {
+                Some(p) => {
+                    let key = format!(
+                        "jobs/{id}/inputs/pattern/{}",
+                        safe_key_name(&p.name, 0, &mut HashSet::new())
+                    );
+                    blobs.put_file(&key, &p.path)?;
+                    Some(key)
+                }
+                None => None,
+            };
+            record.inputs = JobInputs {
+                source,
+                target,
+                constraints,
+                pattern,
+            };
+            jobs.create(&record)
+        })();
+        if !matches!(stored, Ok(CreateOutcome::Created)) {
+            // A replay, a mismatch or a failure: the new files belong to no job.
+            let _ = blobs.delete_prefix(&format!("jobs/{id}/"));
+        }
+        stored.map(|o| (o, record))
+    })
+    .await?;
+    match outcome {
+        (CreateOutcome::Existing(existing), _) => {
+            let location = format!("/v1/jobs/{}", existing.id);
+            Ok(job_response(
+                StatusCode::OK,
+                &existing,
+                &[(header::LOCATION, location)],
+            ))
+        }
+        (CreateOutcome::Created, record) => {
+            state.runner.notify();
+            tracing::info!(job = %id, method = %record.method, "job accepted");
+            let jobs = state.jobs.clone();
+            // The stored revision, so the ETag matches what GET answers.
+            let stored = blocking(move || jobs.get(id)).await?.unwrap_or(record);
+            Ok(job_response(
+                StatusCode::ACCEPTED,
+                &stored,
+                &[
+                    (header::LOCATION, format!("/v1/jobs/{id}")),
+                    (header::RETRY_AFTER, RETRY_AFTER_SECS.to_string()),
+                ],
+            ))
+        }
+    }
+}
+
+/// Read a job.
+#[utoipa::path(get, path = "/v1/jobs/{id}", tag = "jobs",
+    params(("id" = Uuid, Path, description = "Job id"),
+           ("If-None-Match" = Option<String>, Header, description = "ETag of a previous answer")),
+    responses(
+        (status = 200, description = "The job document; `ETag` is its revision", body = JobDocument),
+        (status = 304, description = "Unchanged since the given ETag"),
+        (status = 404, description = "Unknown job", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+    ))]
+pub async fn get_job(
+    State(state): State<AppState>,
+    Path(id): Path<Uuid>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let record = load_job(&state, id).await?;
+    let tag = etag(&record);
+    if if_none_match(&headers, &tag) {
+        let mut resp = StatusCode::NOT_MODIFIED.into_response();
+        if let Ok(v) = HeaderValue::from_str(&tag) {
+            resp.headers_mut().insert(header::ETAG, v);
+        }
+        return Ok(resp);
+    }
+    let retry = if record.status.is_terminal() {
+        vec![]
+    } else {
+        vec![(header::RETRY_AFTER, RETRY_AFTER_SECS.to_string())]
+    };
+    Ok(job_response(StatusCode::OK, &record, &retry))
+}
+
+/// Query of `GET /v1/jobs`.
+#[derive(Debug, Deserialize, IntoParams)]
+#[into_params(parameter_in = Query)]
+pub struct ListQuery {
+    /// Only jobs with this status.
+    status: Option<String>,
+    /// Only jobs of this method.
+    method: Option<String>,
+    /// Only jobs created strictly before this instant (RFC 3339).
+    created_before: Option<DateTime<Utc>>,
+    /// Only jobs created strictly after this instant (RFC 3339).
+    created_after: Option<DateTime<Utc>>,
+    /// Page size, 1..=500 (default 50).
+    limit: Option<usize>,
+    /// Cursor from the previous page's `next`.
+    next: Option<String>,
+}
+
+/// List jobs, newest first.
+#[utoipa::path(get, path = "/v1/jobs", tag = "jobs", params(ListQuery),
+    responses(
+        (status = 200, description = "One page of jobs", body = JobList),
+        (status = 400, description = "Bad filter or cursor", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+    ))]
+pub async fn list_jobs(
+    State(state): State<AppState>,
+    Query(q): Query<ListQuery>,
+) -> Result<Json<JobList>, ApiError> {
+    let status = match q.status.as_deref() {
+        None => None,
+        Some(s) => Some(JobStatus::parse(s).ok_or_else(|| {
+            ApiError::bad_request(
+                "invalid-query",
+                "status",
+                format!("unknown status {s:?}: expected enqueued, processing, succeeded, failed or canceled"),
+            )
+        })?),
+    };
+    let limit = q.limit.unwrap_or(50);
+    if !(1..=500).contains(&limit) {
+        return Err(
+            ApiError::bad_request("invalid-query", "limit", "must be within 1..=500")
+                .limit("max_page_size", 500),
+        );
+    }
+    let filter = ListFilter {
+        status,
+        method: q.method,
+        created_after: q.created_after,
+        created_before: q.created_before,
+        limit,
+        cursor: q.next,
+    };
+    let jobs = state.jobs.clone();
+    let page = blocking(move || jobs.list(&filter)).await?;
+    Ok(Json(JobList {
+        jobs: page.jobs.iter().map(JobDocument::from_record).collect(),
+        next: page.next,
+    }))
+}
+
+/// Cancel a job.
+#[utoipa::path(post, path = "/v1/jobs/{id}/cancel", tag = "jobs",
+    params(("id" = Uuid, Path, description = "Job id")),
+    responses(
+        (status = 200, description = "The job was enqueued and is now canceled", body = JobDocument),
+        (status = 202, description = "The job is processing and stops within a second", body = JobDocument),
+        (status = 404, description = "Unknown job", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+        (status = 409, description = "The job already finished", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+    ))]
+pub async fn cancel_job(
+    State(state): State<AppState>,
+    Path(id): Path<Uuid>,
+) -> Result<Response, ApiError> {
+    let jobs = state.jobs.clone();
+    let record = blocking(move || jobs.cancel_if_enqueued(id, Utc::now())).await?;
+    if record.status == JobStatus::Processing {
+        state.runner.cancel(id);
+        return Ok(job_response(StatusCode::ACCEPTED, &record, &[]));
+    }
+    state.runner.notify();
+    Ok(job_response(StatusCode::OK, &record, &[]))
+}
+
+/// Delete a finished job and its files.
+#[utoipa::path(delete, path = "/v1/jobs/{id}", tag = "jobs",
+    params(("id" = Uuid, Path, description = "Job id")),
+    responses(
+        (status = 204, description = "Deleted"),
+        (status = 404, description = "Unknown job", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+        (status = 409, description = "The job has not finished", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+    ))]
+pub async fn delete_job(
+    State(state): State<AppState>,
+    Path(id): Path<Uuid>,
+) -> Result<StatusCode, ApiError> {
+    let (jobs, blobs) = (state.jobs.clone(), state.blobs.clone());
+    blocking(move || {
+        jobs.delete(id)?;
+        blobs.delete_prefix(&format!("jobs/{id}/"))
+    })
+    .await?;
+    Ok(StatusCode::NO_CONTENT)
+}
