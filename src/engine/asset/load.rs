@@ -82,7 +82,34 @@ fn extension_supported(name: &str) -> bool {
 /// # Errors
 /// Any [`IngestError`]; a panic inside the loader becomes [`IngestError::Internal`].
 pub fn load(main: &str, blobs: &BlobSet, limits: &IngestLimits) -> Result<Asset, IngestError> {
-    catch_unwind(AssertUnwindSafe(|| load_unguarded(main, blobs, limits))).unwrap_or_else(|panic| {
+    load_with(main, blobs, limits, Decode::BaseColor)
+}
+
+/// Which images [`load_with`] decodes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Decode {
+    /// Decode every image a material uses as base color (what the methods sample).
+    BaseColor,
+    /// Decode nothing: every image's format and header dimensions are still checked against the
+    /// limits, but no pixels are read. For validating an upload quickly; the job that uses the
+    /// asset loads it again with [`Decode::BaseColor`].
+    HeadersOnly,
+}
+
+/// [`load`], choosing which images are decoded.
+///
+/// # Errors
+/// As [`load`].
+pub fn load_with(
+    main: &str,
+    blobs: &BlobSet,
+    limits: &IngestLimits,
+    decode: Decode,
+) -> Result<Asset, IngestError> {
+    catch_unwind(AssertUnwindSafe(|| {
+        load_unguarded(main, blobs, limits, decode)
+    }))
+    .unwrap_or_else(|panic| {
         let message = panic
             .downcast_ref::<&str>()
             .map(|s| s.to_string())
@@ -96,6 +123,7 @@ fn load_unguarded(
     main: &str,
     blobs: &BlobSet,
     limits: &IngestLimits,
+    decode: Decode,
 ) -> Result<Asset, IngestError> {
     let total = blobs.total_bytes();
     if total > limits.max_input_bytes {
@@ -225,7 +253,7 @@ fn load_unguarded(
         .iter()
         .filter_map(|m| m.base_color_texture)
         .filter_map(|t| textures[t.texture].image)
-        .filter(|&i| formats[i].is_some())
+        .filter(|&i| formats[i].is_some() && decode == Decode::BaseColor)
         .collect();
     let used: Vec<usize> = used.into_iter().collect();
     let decoded = used

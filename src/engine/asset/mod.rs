@@ -16,5 +16,5 @@ pub mod uri;
 
 pub use blobs::BlobSet;
 pub use error::IngestError;
-pub use load::{load, IngestLimits};
+pub use load::{load, load_with, Decode, IngestLimits};
 pub use model::*;

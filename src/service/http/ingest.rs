@@ -15,7 +15,7 @@ use sha2::{Digest, Sha256};
 
 use super::problem::ApiError;
 use crate::engine::asset::constraints::{Constraints, MAX_CONSTRAINTS_BYTES};
-use crate::engine::asset::{load, BlobSet};
+use crate::engine::asset::{load_with, BlobSet, Decode};
 use crate::service::config::ServeConfig;
 
 /// One uploaded file, already on disk.
@@ -473,7 +473,7 @@ fn unzip(
     Ok(out)
 }
 
-/// Loads a model under the configured limits; the loaded asset is dropped (the job loads it
+/// Loads a model under the configured limits without decoding pixels; the asset is dropped (the job loads it
 /// again on the engine pool).
 fn validate_model(side: &str, model: &UploadModel, config: &ServeConfig) -> Result<(), ApiError> {
     let mut blobs = BlobSet::new();
@@ -481,7 +481,8 @@ fn validate_model(side: &str, model: &UploadModel, config: &ServeConfig) -> Resu
         let bytes = std::fs::read(&f.path).map_err(ApiError::internal)?;
         blobs.insert(f.name.clone(), bytes);
     }
-    load(&model.main, &blobs, &config.limits)
+    // Structure, ranges and image headers are checked here; pixels are decoded by the job.
+    load_with(&model.main, &blobs, &config.limits, Decode::HeadersOnly)
         .map(drop)
         .map_err(|e| ApiError::ingest(side, &e))
 }

@@ -65,6 +65,17 @@ thread_local! {
     static ENGINE_THREAD: Cell<bool> = const { Cell::new(false) };
 }
 
+/// Gives the calling engine thread a lower scheduling priority (nice +10) so that, with every
+/// core busy on long jobs, the HTTP threads still answer polls promptly. On Linux `setpriority`
+/// with `who = 0` applies to the calling thread only. Failure is harmless and ignored.
+fn lower_thread_priority() {
+    #[cfg(target_os = "linux")]
+    // SAFETY: setpriority reads no memory of ours; it only changes the calling thread's nice value.
+    unsafe {
+        libc::setpriority(libc::PRIO_PROCESS, 0, 10);
+    }
+}
+
 /// True when called on one of the runner's engine threads.
 pub fn on_engine_thread() -> bool {
     ENGINE_THREAD.with(Cell::get)
@@ -210,7 +221,10 @@ impl Runner {
             let pool = rayon::ThreadPoolBuilder::new()
                 .num_threads(threads)
                 .thread_name(move |i| format!("retex-engine-{slot}-{i}"))
-                .start_handler(|_| ENGINE_THREAD.with(|c| c.set(true)))
+                .start_handler(|_| {
+                    ENGINE_THREAD.with(|c| c.set(true));
+                    lower_thread_priority();
+                })
                 .build()
                 .map_err(|e| StoreError::Io(std::io::Error::other(format!("engine pool: {e}"))))?;
             pools.push((Arc::new(pool), Arc::new(AtomicBool::new(false))));
