@@ -7,7 +7,7 @@
 
 use std::collections::HashSet;
 
-use axum::extract::{Multipart, Path, Query, State};
+use axum::extract::{FromRequest, Multipart, Path, Query, Request, State};
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
@@ -18,6 +18,7 @@ use uuid::Uuid;
 
 use super::doc::{JobDocument, JobList};
 use super::ingest::{read_upload, safe_key_name, UploadModel};
+use super::linger::{content_length, SharedBody};
 use super::problem::ApiError;
 use super::{blocking, AppState};
 use crate::service::model::{JobInputs, JobProgress, JobRecord, JobStatus, ModelFiles};
@@ -129,9 +130,42 @@ async fn queue_depth(state: &AppState) -> Result<u64, ApiError> {
         (status = 422, description = "Invalid model or constraints, or Idempotency-Key reused", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 503, description = "Queue full; see Retry-After", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
     ))]
-pub async fn submit(
-    State(state): State<AppState>,
-    headers: HeaderMap,
+pub async fn submit(State(state): State<AppState>, request: Request) -> Result<Response, ApiError> {
+    let (parts, body) = request.into_parts();
+    let limit = state.config.max_body_bytes;
+    let (shared, limited) = SharedBody::new(body, limit);
+    let headers = parts.headers.clone();
+    let result = if content_length(&headers).is_some_and(|n| n > limit) {
+        Err(ApiError::too_large("body", "max_body_bytes", limit))
+    } else {
+        let request = Request::from_parts(parts, limited);
+        match Multipart::from_request(request, &state).await {
+            Ok(multipart) => submit_multipart(&state, &headers, multipart).await,
+            Err(rejection) => Err(ApiError::bad_request(
+                "invalid-multipart",
+                "body",
+                rejection.body_text(),
+            )),
+        }
+    };
+    let result = result.map_err(|e| {
+        if shared.over_limit() {
+            ApiError::too_large("body", "max_body_bytes", limit)
+        } else {
+            e
+        }
+    });
+    if result.is_err() && shared.worth_draining(&headers, limit) {
+        // Read the rest so the client, still writing, gets the answer and not a reset.
+        shared.drain().await;
+    }
+    result
+}
+
+/// Validates and stores a multipart submission.
+async fn submit_multipart(
+    state: &AppState,
+    headers: &HeaderMap,
     multipart: Multipart,
 ) -> Result<Response, ApiError> {
     let key = match headers.get("idempotency-key") {
@@ -147,8 +181,8 @@ pub async fn submit(
             }
         },
     };
-    if queue_depth(&state).await? >= state.config.queue_len {
-        return Err(queue_full(&state));
+    if queue_depth(state).await? >= state.config.queue_len {
+        return Err(queue_full(state));
     }
     let upload = read_upload(multipart, &state.config, &state.blobs.temp_dir()).await?;
     let id = Uuid::now_v7();

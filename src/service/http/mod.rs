@@ -33,6 +33,7 @@ pub mod events;
 pub mod files;
 pub mod ingest;
 pub mod jobs;
+pub mod linger;
 pub mod metrics;
 pub mod openapi;
 pub mod ops;
@@ -111,12 +112,12 @@ async fn problem_rejections(
 /// The application with all routes and layers.
 pub fn router(state: AppState) -> Router {
     let config = state.config.clone();
-    let body_limit = usize::try_from(config.max_body_bytes).unwrap_or(usize::MAX);
     let api = Router::new()
         .route(
             "/v1/jobs",
+            // The body limit is enforced by `linger::SharedBody` inside the handler.
             post(jobs::submit)
-                .layer(DefaultBodyLimit::max(body_limit))
+                .layer(DefaultBodyLimit::disable())
                 .get(jobs::list_jobs),
         )
         .route("/v1/jobs/{id}", get(jobs::get_job).delete(jobs::delete_job))
