@@ -227,7 +227,12 @@ async fn bad_constraints_fail_with_a_problem_naming_the_field() {
         r#"{"version":1,"output":{"texture_size":"large"}}"#,
     );
     let unknown = submit(&env, &runner, SPOT, r#"{"version":1,"outptu":{}}"#);
-    let not_impl = submit(&env, &runner, SPOT, r#"{"version":1,"method":"meshmatch"}"#);
+    let not_impl = submit(
+        &env,
+        &runner,
+        SPOT,
+        r#"{"version":1,"method":"elastiface"}"#,
+    );
 
     let j = wait_terminal(&env, bad_type).await;
     assert_eq!(j.status, JobStatus::Failed);

@@ -13,7 +13,14 @@ use crate::engine::asset::constraints::{Constraints, ConstraintsError, MethodId,
 use crate::engine::asset::export::{export, ExportError};
 use crate::engine::asset::{load, BlobSet, IngestError, IngestLimits};
 use crate::engine::control::{Cancelled, Control};
+use crate::engine::methods::meshmatch::{self, MeshMatchError, MeshMatchParams};
 use crate::engine::methods::project::{self, ProjectError, ProjectParams};
+
+/// The parsed parameters of the method that runs.
+enum MethodParams {
+    Project(ProjectParams),
+    Meshmatch(Box<MeshMatchParams>),
+}
 
 /// One input model: the name of its main file inside its blob set.
 #[derive(Clone, Copy, Debug)]
@@ -102,11 +109,14 @@ pub enum TransferError {
     #[error(transparent)]
     Constraints(#[from] ConstraintsError),
     /// The method is known but not implemented yet.
-    #[error("method {0:?} is not implemented yet; available: project")]
+    #[error("method {0:?} is not implemented yet; available: project, meshmatch")]
     MethodNotImplemented(&'static str),
     /// The `project` method failed.
     #[error(transparent)]
     Project(ProjectError),
+    /// The `meshmatch` method failed.
+    #[error(transparent)]
+    Meshmatch(MeshMatchError),
     /// Writing the output failed.
     #[error(transparent)]
     Export(#[from] ExportError),
@@ -131,6 +141,18 @@ impl From<ProjectError> for TransferError {
     }
 }
 
+impl From<MeshMatchError> for TransferError {
+    fn from(e: MeshMatchError) -> Self {
+        if e.is_cancelled() {
+            return TransferError::Cancelled;
+        }
+        match e {
+            MeshMatchError::Constraints(c) => TransferError::Constraints(c),
+            other => TransferError::Meshmatch(other),
+        }
+    }
+}
+
 /// Runs a whole transfer under `control`.
 pub fn transfer(
     input: &TransferInput<'_>,
@@ -139,7 +161,10 @@ pub fn transfer(
     let c = &input.constraints;
     c.validate()?;
     let params = match c.method {
-        MethodId::Project => ProjectParams::from_constraints(c)?,
+        MethodId::Project => MethodParams::Project(ProjectParams::from_constraints(c)?),
+        MethodId::Meshmatch => {
+            MethodParams::Meshmatch(Box::new(MeshMatchParams::from_constraints(c)?))
+        }
         other => return Err(TransferError::MethodNotImplemented(other.as_str())),
     };
     control.plan(6);
@@ -170,8 +195,26 @@ pub fn transfer(
     })?;
     lap("load", &mut timings);
 
-    let (edits, report) = project::run(&source, &target, c, &params, control)?;
-    lap("project", &mut timings);
+    let mut extra = Vec::new();
+    let (edits, method_report) = match &params {
+        MethodParams::Project(p) => {
+            let (edits, report) = project::run(&source, &target, c, p, control)?;
+            lap("project", &mut timings);
+            (edits, serde_json::to_value(&report).unwrap_or_default())
+        }
+        MethodParams::Meshmatch(p) => {
+            let (edits, report, nnf) = meshmatch::run(&source, &target, c, p, control)?;
+            lap("meshmatch", &mut timings);
+            if let Some(bytes) = nnf {
+                extra.push(Artifact {
+                    name: "nnf.bin".into(),
+                    media_type: "application/octet-stream",
+                    bytes,
+                });
+            }
+            (edits, serde_json::to_value(&report).unwrap_or_default())
+        }
+    };
 
     control.stage("export", 1)?;
     let model = export(&target, &edits, c.output.format)?;
@@ -191,10 +234,11 @@ pub fn transfer(
         method: c.method,
         source_warnings: source.warnings.clone(),
         target_warnings: target.warnings.clone(),
-        method_report: serde_json::to_value(&report).unwrap_or_default(),
+        method_report,
         timings,
         output_bytes: model.len(),
     };
+    artifacts.extend(extra);
     artifacts.push(Artifact {
         name: "report.json".into(),
         media_type: "application/json",

@@ -319,23 +319,14 @@ pub fn geodesic_fans(
                 for (i, fan) in out.chunks_exact_mut(shape.len()).enumerate() {
                     let s = chunk * CHUNK + i;
                     let chart = builder.build(&connection, s, radius + reach, &chart_params);
-                    let ring_len = shape.spokes * shape.dim;
-                    for (ring, ring_out) in fan.chunks_exact_mut(ring_len).enumerate() {
-                        // Only chart vertices with | |U| − ρ | <= reach can be within reach of
-                        // a sample on ring ρ.
-                        let rho = (ring + 1) as f32 * radius / shape.rings as f32;
-                        scratch.band(chart.vertex, chart.coords, &area, rho, reach);
-                        let ring_samples = &samples[ring * shape.spokes..(ring + 1) * shape.spokes];
-                        for (sample, value) in ring_samples
-                            .iter()
-                            .zip(ring_out.chunks_exact_mut(field.dim))
-                        {
-                            kernel.estimate(*sample, scratch, field, value);
-                            if scratch.fallback {
-                                nearest_value(*sample, chart.vertex, chart.coords, field, value);
-                            }
-                        }
-                    }
+                    let layout = Layout {
+                        shape,
+                        radius,
+                        reach,
+                        samples: &samples,
+                        area: &area,
+                    };
+                    layout.fill(chart.vertex, chart.coords, &kernel, field, scratch, fan);
                     // Per source: a chart can be large when the radius is.
                     stage.tick(1)?;
                 }
@@ -350,6 +341,205 @@ pub fn geodesic_fans(
         sigma,
         data,
     })
+}
+
+/// What every fan of one surface shares: layout, sample positions, vertex areas.
+struct Layout<'a> {
+    shape: FanShape,
+    radius: f32,
+    reach: f32,
+    samples: &'a [[f32; 2]],
+    area: &'a [f32],
+}
+
+impl Layout<'_> {
+    /// Fills one fan from the chart `(vertex, coords)` of its centre.
+    fn fill(
+        &self,
+        vertex: &[u32],
+        coords: &[[f32; 2]],
+        kernel: &Kernel,
+        field: FieldRef<'_>,
+        scratch: &mut Scratch,
+        fan: &mut [f32],
+    ) {
+        let shape = self.shape;
+        let ring_len = shape.spokes * shape.dim;
+        for (ring, ring_out) in fan.chunks_exact_mut(ring_len).enumerate() {
+            // Only chart vertices with | |U| − ρ | <= reach can be within reach of a sample on
+            // ring ρ.
+            let rho = (ring + 1) as f32 * self.radius / shape.rings as f32;
+            scratch.band(vertex, coords, self.area, rho, self.reach);
+            let ring_samples = &self.samples[ring * shape.spokes..(ring + 1) * shape.spokes];
+            for (sample, value) in ring_samples
+                .iter()
+                .zip(ring_out.chunks_exact_mut(field.dim))
+            {
+                kernel.estimate(*sample, scratch, field, value);
+                if scratch.fallback {
+                    nearest_value(*sample, vertex, coords, field, value);
+                }
+            }
+        }
+    }
+}
+
+/// Fans of one surface for many fields (MeshMatch samples the target's changing colours once per
+/// EM iteration): the exponential-map charts (radius + reach) are built once by [`FanSampler::new`]
+/// and reused by every [`FanSampler::sample`], which gives exactly what [`geodesic_fans`] gives.
+pub struct FanSampler {
+    params: FanParams,
+    radius: f32,
+    sigma: f32,
+    reach: f32,
+    samples: Vec<[f32; 2]>,
+    area: Vec<f32>,
+    charts: super::expmap::ExpMap,
+}
+
+impl FanSampler {
+    /// Builds the charts of every vertex of `surface`.
+    ///
+    /// # Errors
+    /// As [`geodesic_fans`] (the field is checked later).
+    pub fn new(
+        surface: &Surface,
+        frames: &LocalFrames,
+        params: &FanParams,
+        control: &Control,
+    ) -> Result<Self, FanError> {
+        let nv = surface.vertex_count();
+        let probe = vec![0.0f32; nv];
+        validate(
+            surface,
+            frames,
+            FieldRef {
+                dim: 1,
+                values: &probe,
+            },
+            params,
+        )?;
+        let radius = world_radius(surface, params.radius, params.radius_unit);
+        if nv > 0 && !(radius > 0.0 && radius.is_finite()) {
+            return Err(FanError::InvalidParam {
+                name: "radius (world units)",
+                value: radius as f64,
+                range: "(0, inf)",
+            });
+        }
+        let sigma = params.sigma * radius / params.rings as f32;
+        let reach = params.cutoff * sigma;
+        let shape = FanShape {
+            rings: params.rings,
+            spokes: params.spokes,
+            dim: 1,
+        };
+        let samples = (0..params.rings)
+            .flat_map(|i| (0..params.spokes).map(move |j| shape.sample_position(radius, i, j)))
+            .collect();
+        let charts = super::expmap::exponential_map(
+            surface,
+            frames,
+            &ExpMapParams {
+                radius: radius + reach,
+                radius_unit: RadiusUnit::World,
+                upwind_average: params.upwind_average,
+            },
+            control,
+        )
+        .map_err(|e| match e {
+            super::expmap::ExpMapError::Cancelled => FanError::Cancelled,
+            super::expmap::ExpMapError::InvalidParam { name, value, range } => {
+                FanError::InvalidParam { name, value, range }
+            }
+            super::expmap::ExpMapError::FrameCount { expected, got } => FanError::LengthMismatch {
+                what: "frames",
+                expected,
+                got,
+            },
+        })?;
+        Ok(Self {
+            params: params.clone(),
+            radius,
+            sigma,
+            reach,
+            samples,
+            area: lumped_areas(surface),
+            charts,
+        })
+    }
+
+    /// The charts (radius = fan radius + filter reach), world units.
+    pub fn charts(&self) -> &super::expmap::ExpMap {
+        &self.charts
+    }
+
+    /// Outer ring radius, world units.
+    pub fn radius(&self) -> f32 {
+        self.radius
+    }
+
+    /// Samples `field` on every fan (parallel; one Control tick per vertex).
+    ///
+    /// # Errors
+    /// [`FanError::LengthMismatch`] when `field` does not fit the surface; [`FanError::Cancelled`].
+    pub fn sample(&self, field: FieldRef<'_>, control: &Control) -> Result<Fans, FanError> {
+        let nv = self.area.len();
+        if field.dim == 0 {
+            return Err(FanError::InvalidParam {
+                name: "field.dim",
+                value: 0.0,
+                range: "1..",
+            });
+        }
+        if field.values.len() != nv * field.dim {
+            return Err(FanError::LengthMismatch {
+                what: "field",
+                expected: nv * field.dim,
+                got: field.values.len(),
+            });
+        }
+        let shape = FanShape {
+            rings: self.params.rings,
+            spokes: self.params.spokes,
+            dim: field.dim,
+        };
+        let kernel = Kernel {
+            inv_two_sigma2: 1.0 / (2.0 * self.sigma * self.sigma),
+            inv_sigma: 1.0 / self.sigma,
+            reach2: self.reach * self.reach,
+            filter: self.params.filter,
+        };
+        let layout = Layout {
+            shape,
+            radius: self.radius,
+            reach: self.reach,
+            samples: &self.samples,
+            area: &self.area,
+        };
+        let stage = control.stage("geodesic fans", nv as u64)?;
+        let mut data = vec![0.0f32; nv * shape.len()];
+        data.par_chunks_mut(CHUNK * shape.len().max(1))
+            .enumerate()
+            .try_for_each_init(
+                || Scratch::new(field.dim),
+                |scratch, (chunk, out)| {
+                    for (i, fan) in out.chunks_exact_mut(shape.len()).enumerate() {
+                        let (vertex, coords) = self.charts.chart(chunk * CHUNK + i);
+                        layout.fill(vertex, coords, &kernel, field, scratch, fan);
+                    }
+                    stage.tick((out.len() / shape.len().max(1)) as u64)
+                },
+            )?;
+        Ok(Fans {
+            rings: shape.rings,
+            spokes: shape.spokes,
+            dim: shape.dim,
+            radius: self.radius,
+            sigma: self.sigma,
+            data,
+        })
+    }
 }
 
 fn validate(

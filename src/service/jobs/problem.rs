@@ -11,6 +11,7 @@ use crate::engine::asset::export::ExportError;
 use crate::engine::asset::IngestError;
 use crate::engine::mesh::surface::MeshError;
 use crate::engine::methods::project::ProjectError;
+use crate::engine::methods::meshmatch::MeshMatchError;
 use crate::engine::pipeline::TransferError;
 use crate::service::model::Problem;
 
@@ -131,7 +132,7 @@ pub fn transfer_problem(e: &TransferError) -> Problem {
                 "method-not-implemented",
                 "the method is not implemented yet",
                 422,
-                format!("method {m:?} is not implemented yet; available: project"),
+                format!("method {m:?} is not implemented yet; available: project, meshmatch"),
             )
         },
         TransferError::Project(ProjectError::Mesh { side, source }) => {
@@ -157,6 +158,7 @@ pub fn transfer_problem(e: &TransferError) -> Problem {
             409,
             "the job was canceled".into(),
         ),
+        TransferError::Meshmatch(m) => meshmatch_problem(m, e),
         TransferError::Export(ExportError::TooLarge { bytes }) => Problem {
             limit: Some(serde_json::Value::from(u64::from(u32::MAX))),
             ..problem(
@@ -172,6 +174,39 @@ pub fn transfer_problem(e: &TransferError) -> Problem {
             500,
             other.to_string(),
         ),
+    }
+}
+
+/// The problem of a failed `meshmatch` run: bad parameters name their field (422), bad meshes
+/// their side (422), anything else is the engine's fault (500).
+fn meshmatch_problem(m: &MeshMatchError, e: &TransferError) -> Problem {
+    match m {
+        MeshMatchError::Param { name, .. } => Problem {
+            field: Some(format!("constraints.params.{name}")),
+            ..problem(
+                "invalid-constraints",
+                "the constraints are invalid",
+                422,
+                e.to_string(),
+            )
+        },
+        MeshMatchError::Constraints(c) => constraints_problem(c),
+        MeshMatchError::Mesh { side, source } => Problem {
+            field: Some(side.to_string()),
+            ..problem(
+                mesh_kind(source),
+                &format!("the {side} surface cannot be built"),
+                422,
+                e.to_string(),
+            )
+        },
+        MeshMatchError::Hierarchy(_) | MeshMatchError::Resample(_) => problem(
+            "unusable-mesh",
+            "a mesh cannot be prepared for matching",
+            422,
+            e.to_string(),
+        ),
+        _ => problem("meshmatch-failed", "meshmatch failed", 500, e.to_string()),
     }
 }
 

@@ -1,0 +1,376 @@
+//! The E-step of MeshMatch (Chen et al. 2012, §4.2): the nearest-neighbour field (NNF) from
+//! target vertices to source vertices with a relative rotation, improved by propagation and
+//! random search under the patch dissimilarity of §4.1 (eq. 2).
+//!
+//! **Dissimilarity.** `D(t, s) = Σ_shape (f_T(t) − f_S(s))² + min_k Σ_fan (F_T(t)_j − F_S(s)_{j+k})²`:
+//! the shape vectors at the fan centres plus the geodesic-fan colours at the best of the `A`
+//! rotations (spoke `j` of the target against spoke `j + k` of the source). The caller scales
+//! both blocks so their weights are equal after normalizing for dimension and variance (paper §5.2).
+//! Rotations are searched exhaustively (the paper) or, with `randomized_rotations`, only around
+//! the rotation carried from where the candidate came from plus one random rotation (Barnes et
+//! al. 2010, the speed-up the paper suggests in §5.5). Sums are abandoned ring by ring once they
+//! pass the best distance so far.
+//!
+//! **Propagation.** Target vertices are visited in breadth-first order from a start per connected
+//! component (random at first, then the last vertex of the previous sequence, the paper's
+//! alternating passes). Candidates are the current match and every source vertex adjacent to (or
+//! equal to) the match of a target neighbour. For determinism with any thread count the order is
+//! cut into fixed blocks of [`BLOCK`] vertices processed in parallel: inside a block updates are
+//! seen at once (Gauss–Seidel, as in PatchMatch), across blocks the field from the start of the
+//! pass is read.
+//!
+//! **Random search.** For the current match `s` and `j = 1, 2, …` up to the coarsest source level,
+//! a uniformly random descendant of `s`'s ancestor `j` levels up (Figure 4): samples at distances
+//! growing like `√2^j`. On the coarsest level, uniform samples over the whole source. Each
+//! target vertex has its own seeded generator, so the result does not depend on threads.
+
+use rayon::prelude::*;
+
+use crate::engine::geometry::fans::FanShape;
+use crate::engine::multires::{Hierarchy, SplitMix64};
+
+/// Target vertices per propagation block (fixed: the result must not depend on threads).
+pub const BLOCK: usize = 2048;
+
+/// The nearest-neighbour field of one level.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Nnf {
+    /// Matched source vertex per target vertex.
+    pub source: Vec<u32>,
+    /// Rotation in spokes: target spoke `j` matches source spoke `j + rotation`.
+    pub rotation: Vec<u16>,
+    /// Dissimilarity of the match.
+    pub distance: Vec<f32>,
+}
+
+impl Nnf {
+    /// Mean dissimilarity (the EM energy per vertex), over finite entries.
+    pub fn energy(&self) -> f64 {
+        let (sum, n) = self
+            .distance
+            .iter()
+            .filter(|d| d.is_finite())
+            .fold((0.0f64, 0usize), |(s, n), &d| (s + d as f64, n + 1));
+        if n == 0 {
+            0.0
+        } else {
+            sum / n as f64
+        }
+    }
+}
+
+/// Features of both meshes on one level.
+#[derive(Clone, Copy)]
+pub struct PatchSpace<'a> {
+    /// Fan layout (rings, spokes, channels).
+    pub fan: FanShape,
+    /// Target fans, `fan.len()` floats per vertex (already weighted).
+    pub target_fans: &'a [f32],
+    /// Source fans.
+    pub source_fans: &'a [f32],
+    /// Target shape vectors, `shape_dim` per vertex (already weighted).
+    pub target_shape: &'a [f32],
+    /// Source shape vectors.
+    pub source_shape: &'a [f32],
+    /// Floats per shape vector (0 without shape features).
+    pub shape_dim: usize,
+    /// Source vertices that may be matched (by-example mode); `None`: all.
+    pub source_allowed: Option<&'a [bool]>,
+}
+
+/// Which rotations to try for a candidate.
+#[derive(Clone, Copy, Debug)]
+pub enum Rotations {
+    /// All `A` rotations (the paper).
+    All,
+    /// `prior − 1, prior, prior + 1` and `extra`.
+    Around { prior: u16, extra: u16 },
+}
+
+impl PatchSpace<'_> {
+    /// Whether source vertex `s` may be matched.
+    #[inline]
+    pub fn allowed(&self, s: usize) -> bool {
+        self.source_allowed.is_none_or(|a| a[s])
+    }
+
+    fn shape_distance(&self, t: usize, s: usize) -> f32 {
+        let d = self.shape_dim;
+        let a = &self.target_shape[t * d..(t + 1) * d];
+        let b = &self.source_shape[s * d..(s + 1) * d];
+        a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
+    }
+
+    /// The best rotation and dissimilarity of target `t` against source `s`, or `None` when it is
+    /// not below `bound`.
+    pub fn evaluate(&self, t: usize, s: usize, rotations: Rotations, bound: f32) -> Option<(u16, f32)> {
+        let shape = self.shape_distance(t, s);
+        if shape >= bound {
+            return None;
+        }
+        let n = self.fan.len();
+        let a = &self.target_fans[t * n..(t + 1) * n];
+        let b = &self.source_fans[s * n..(s + 1) * n];
+        let spokes = self.fan.spokes as u16;
+        let mut best: Option<(u16, f32)> = None;
+        let mut limit = bound - shape;
+        let mut try_k = |k: u16| {
+            let d = self.fan.distance_below(a, b, k as usize, limit);
+            if d < limit {
+                limit = d;
+                best = Some((k, d + shape));
+            }
+        };
+        match rotations {
+            Rotations::All => (0..spokes).for_each(&mut try_k),
+            Rotations::Around { prior, extra } => {
+                let p = prior % spokes;
+                try_k(p);
+                try_k((p + 1) % spokes);
+                try_k((p + spokes - 1) % spokes);
+                try_k(extra % spokes);
+            }
+        }
+        best
+    }
+}
+
+/// Everything an E-step needs besides the field.
+pub struct EStep<'a> {
+    /// Features.
+    pub space: PatchSpace<'a>,
+    /// Target 1-rings (CSR offsets, neighbours).
+    pub target_adjacency: (&'a [u32], &'a [u32]),
+    /// Source 1-rings.
+    pub source_adjacency: (&'a [u32], &'a [u32]),
+    /// The source hierarchy and the level being matched.
+    pub source_hierarchy: &'a Hierarchy,
+    /// Level index.
+    pub level: usize,
+    /// Randomized rotation search instead of exhaustive.
+    pub randomized_rotations: bool,
+    /// Target vertices whose match never changes (by-example mode); `None`: none.
+    pub fixed: Option<&'a [bool]>,
+    /// Seed of this level and iteration.
+    pub seed: u64,
+}
+
+/// Mixes a seed with indices (SplitMix64 finalizer).
+pub fn mix(seed: u64, a: u64, b: u64) -> u64 {
+    let mut z = seed ^ a.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ b.wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+fn ring<'a>(adj: (&'a [u32], &'a [u32]), v: usize) -> &'a [u32] {
+    &adj.1[adj.0[v] as usize..adj.0[v + 1] as usize]
+}
+
+impl EStep<'_> {
+    fn rotations(&self, prior: u16, rng: &mut SplitMix64) -> Rotations {
+        if self.randomized_rotations {
+            Rotations::Around {
+                prior,
+                extra: rng.below(self.space.fan.spokes as u64) as u16,
+            }
+        } else {
+            Rotations::All
+        }
+    }
+
+    fn is_fixed(&self, t: usize) -> bool {
+        self.fixed.is_some_and(|f| f[t])
+    }
+
+    /// Re-evaluates every current match (the target fans changed with the last vote).
+    pub fn refresh(&self, nnf: &mut Nnf) {
+        nnf.source
+            .par_iter()
+            .zip(nnf.rotation.par_iter_mut())
+            .zip(nnf.distance.par_iter_mut())
+            .enumerate()
+            .for_each(|(t, ((s, k), d))| {
+                let mut rng = SplitMix64::new(mix(self.seed, 1, t as u64));
+                let r = self.rotations(*k, &mut rng);
+                match self.space.evaluate(t, *s as usize, r, f32::INFINITY) {
+                    Some((nk, nd)) => {
+                        *k = nk;
+                        *d = nd;
+                    }
+                    None => *d = f32::INFINITY,
+                }
+            });
+    }
+
+    /// One propagation pass in `order` (a permutation of the target vertices). Returns how many
+    /// matches changed.
+    pub fn propagate(&self, nnf: &mut Nnf, order: &[u32]) -> usize {
+        let n = order.len();
+        let mut pos = vec![0u32; n];
+        for (i, &v) in order.iter().enumerate() {
+            pos[v as usize] = i as u32;
+        }
+        let snapshot = &*nnf;
+        let mut perm: Vec<(u32, u16, f32)> = order
+            .iter()
+            .map(|&v| {
+                let v = v as usize;
+                (snapshot.source[v], snapshot.rotation[v], snapshot.distance[v])
+            })
+            .collect();
+        let changed: usize = perm
+            .par_chunks_mut(BLOCK)
+            .enumerate()
+            .map(|(b, block)| {
+                let base = b * BLOCK;
+                let mut seen: Vec<u32> = Vec::with_capacity(64);
+                let mut changed = 0usize;
+                for i in 0..block.len() {
+                    let t = order[base + i] as usize;
+                    if self.is_fixed(t) {
+                        continue;
+                    }
+                    let mut rng = SplitMix64::new(mix(self.seed, 2, t as u64));
+                    let (mut best_s, mut best_k, mut best_d) = block[i];
+                    seen.clear();
+                    seen.push(best_s);
+                    for &nb in ring(self.target_adjacency, t) {
+                        let p = pos[nb as usize] as usize;
+                        let (sn, kn) = if p >= base && p < base + block.len() {
+                            (block[p - base].0, block[p - base].1)
+                        } else {
+                            (snapshot.source[nb as usize], snapshot.rotation[nb as usize])
+                        };
+                        let around = std::iter::once(sn)
+                            .chain(ring(self.source_adjacency, sn as usize).iter().copied());
+                        for c in around {
+                            if seen.contains(&c) || !self.space.allowed(c as usize) {
+                                continue;
+                            }
+                            seen.push(c);
+                            let r = self.rotations(kn, &mut rng);
+                            if let Some((k, d)) = self.space.evaluate(t, c as usize, r, best_d) {
+                                (best_s, best_k, best_d) = (c, k, d);
+                            }
+                        }
+                    }
+                    if best_s != block[i].0 {
+                        changed += 1;
+                    }
+                    block[i] = (best_s, best_k, best_d);
+                }
+                changed
+            })
+            .sum();
+        for (i, &v) in order.iter().enumerate() {
+            let (s, k, d) = perm[i];
+            nnf.source[v as usize] = s;
+            nnf.rotation[v as usize] = k;
+            nnf.distance[v as usize] = d;
+        }
+        changed
+    }
+
+    /// One random-search pass (parallel, per-vertex generators). Returns how many matches
+    /// changed.
+    pub fn random_search(&self, nnf: &mut Nnf) -> usize {
+        let h = self.source_hierarchy;
+        let top = h.level_count() - 1;
+        let source_count = h.level(self.level).surface.vertex_count() as u64;
+        let draws_at_top = (64 - source_count.leading_zeros()).max(1) as usize;
+        nnf.source
+            .par_iter_mut()
+            .zip(nnf.rotation.par_iter_mut())
+            .zip(nnf.distance.par_iter_mut())
+            .enumerate()
+            .map(|(t, ((s, k), d))| {
+                if self.is_fixed(t) {
+                    return 0usize;
+                }
+                let mut rng = SplitMix64::new(mix(self.seed, 3, t as u64));
+                let start = *s;
+                let consider = |c: u32, rng: &mut SplitMix64, s: &mut u32, k: &mut u16, d: &mut f32| {
+                    if c == *s || !self.space.allowed(c as usize) {
+                        return;
+                    }
+                    let r = self.rotations(*k, rng);
+                    if let Some((nk, nd)) = self.space.evaluate(t, c as usize, r, *d) {
+                        (*s, *k, *d) = (c, nk, nd);
+                    }
+                };
+                for j in 1..=(top - self.level) {
+                    let ancestor = h.ancestor(self.level, *s, j);
+                    let c = h.random_descendant(self.level + j, ancestor, j, &mut rng);
+                    consider(c, &mut rng, s, k, d);
+                }
+                if self.level == top {
+                    for _ in 0..draws_at_top {
+                        let c = rng.below(source_count) as u32;
+                        consider(c, &mut rng, s, k, d);
+                    }
+                }
+                usize::from(*s != start)
+            })
+            .sum()
+    }
+}
+
+/// Breadth-first visiting order of all target vertices, one sweep per connected component from
+/// `starts[c]` (updated to the last vertex reached, the start of the next pass).
+pub fn bfs_order(adjacency: (&[u32], &[u32]), component: &[u32], starts: &mut [u32]) -> Vec<u32> {
+    let n = component.len();
+    let mut visited = vec![false; n];
+    let mut order = Vec::with_capacity(n);
+    for start in starts.iter_mut() {
+        let first = order.len();
+        let s = *start as usize;
+        visited[s] = true;
+        order.push(*start);
+        let mut head = first;
+        while head < order.len() {
+            let v = order[head] as usize;
+            head += 1;
+            for &nb in ring(adjacency, v) {
+                if !visited[nb as usize] {
+                    visited[nb as usize] = true;
+                    order.push(nb);
+                }
+            }
+        }
+        *start = *order.last().unwrap_or(start);
+    }
+    // Vertices of no listed component (isolated): appended in index order.
+    for v in 0..n {
+        if !visited[v] {
+            order.push(v as u32);
+        }
+    }
+    order
+}
+
+/// Connected components of a vertex graph: a label per vertex (numbered by lowest vertex) and the
+/// lowest vertex of each component.
+pub fn components(adjacency: (&[u32], &[u32]), n: usize) -> (Vec<u32>, Vec<u32>) {
+    let mut label = vec![u32::MAX; n];
+    let mut firsts = Vec::new();
+    let mut stack = Vec::new();
+    for v in 0..n {
+        if label[v] != u32::MAX {
+            continue;
+        }
+        let c = firsts.len() as u32;
+        firsts.push(v as u32);
+        label[v] = c;
+        stack.push(v);
+        while let Some(x) = stack.pop() {
+            for &nb in ring(adjacency, x) {
+                if label[nb as usize] == u32::MAX {
+                    label[nb as usize] = c;
+                    stack.push(nb as usize);
+                }
+            }
+        }
+    }
+    (label, firsts)
+}

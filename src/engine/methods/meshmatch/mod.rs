@@ -1,0 +1,275 @@
+//! The `meshmatch` method: non-parametric texture transfer with PatchMatch on meshes (Chen,
+//! Funkhouser, Goldman, Shechtman, *Non-parametric Texture Transfer Using MeshMatch*, 2012).
+//!
+//! The target's colour is synthesized so that every patch of it looks like some patch of the
+//! source with similar shape features, instead of being mapped one to one: stretched regions get
+//! more texture, repeated parts get repeated texture.
+//!
+//! - [`synthesis`]: both meshes resampled to the requested density; source colours on vertices.
+//! - [`levels`]: hierarchies (§4) with frames, 1-rings, BVHs; fields moved between levels.
+//! - [`features`]: shape features (§4.1): HKS + up, geodesic affinities to correspondences.
+//! - [`matcher`]: patch dissimilarity (eq. 2), propagation and random search (§4.2 E-step).
+//! - [`vote`]: Gaussian voting (§4.2 M-step, Figure 5) and nearest-neighbour reconstruction.
+//! - [`upsample`]: the field carried to the finer level (§4.2, Figure 6).
+//! - [`synthesize`]: the coarse-to-fine EM on two synthesis meshes.
+//! - [`example`]: the by-example mask (§5.3).
+//! - [`run`]: glTF in, glTF out (bake through [`super::color_output`]), the NNF artifact.
+
+pub mod example;
+pub mod features;
+pub mod levels;
+pub mod matcher;
+pub mod nnf_file;
+pub mod run;
+pub mod synthesis;
+pub mod synthesize;
+pub mod upsample;
+pub mod vote;
+
+use serde::{Deserialize, Serialize};
+
+use crate::engine::asset::constraints::{Constraints, ConstraintsError};
+use crate::engine::control::Cancelled;
+use crate::engine::mesh::WeldParams;
+
+use features::{AffinityParams, AutomaticFeatureParams};
+
+pub use example::ExampleMask;
+pub use run::run;
+
+/// Which shape features describe a patch's place on the shape (§4.1).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ShapeFeatures {
+    /// Geodesic affinities when correspondences are given, HKS + up otherwise. Default.
+    #[default]
+    Auto,
+    /// HKS + up only.
+    Automatic,
+    /// Geodesic affinities only (needs correspondences).
+    Affinity,
+    /// Both, concatenated.
+    Both,
+    /// Colour fans only.
+    None,
+}
+
+/// How the two meshes' sizes relate.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ScaleMode {
+    /// Scale the source so both surfaces have the same area (texture features keep their size
+    /// relative to the whole model). Default.
+    #[default]
+    MatchArea,
+    /// Keep world units (texture features keep their absolute size).
+    World,
+}
+
+/// Parameters of `meshmatch` (the `params` object of the constraints).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MeshMatchParams {
+    /// Vertices of the target synthesis mesh. Default 65,536 (the paper's 64K). Range
+    /// 256..=1,000,000.
+    pub samples: usize,
+    /// Vertices of the source synthesis mesh. Default: the target's density (same vertices per
+    /// unit area after scaling). Range 256..=1,000,000.
+    pub source_samples: Option<usize>,
+    /// Relative size of the meshes. Default `match_area`.
+    pub scale: ScaleMode,
+    /// Vertices of the coarsest level. Default 128 (paper). Range 16..=100,000.
+    pub min_vertices: usize,
+    /// EM iterations per level. Default 5 (paper). Range 1..=100.
+    pub iterations: usize,
+    /// A level stops early when fewer than this fraction of matches changed in an iteration.
+    /// Default 0.01. Range [0, 1].
+    pub convergence: f32,
+    /// Fan rings `R`. Default 3 (paper). Range 1..=8.
+    pub rings: usize,
+    /// Fan spokes `A`. Default 18 (paper). Range 4..=64.
+    pub spokes: usize,
+    /// Outer fan radius in mean edge lengths of the target level. Default 3. Range (0, 20].
+    pub fan_radius: f32,
+    /// Shape features. Default `auto`.
+    pub shape_features: ShapeFeatures,
+    /// HKS and up direction (the up direction also orients the fan frames).
+    pub hks: AutomaticFeatureParams,
+    /// Geodesic affinities.
+    pub affinity: AffinityParams,
+    /// Shape features are computed on the finest level with at most this many vertices and
+    /// carried to the others. Default 8,000. Range 100..=1,000,000.
+    pub feature_vertices: usize,
+    /// Weight of the shape block relative to colour on the coarsest level (1 = equal after
+    /// normalizing for dimension and variance, §5.2). Default 1. Range [0, 100].
+    pub shape_weight: f32,
+    /// Shape weight on the finest level (geometric in between). Default: `shape_weight`.
+    /// Range [0, 100].
+    pub finest_shape_weight: Option<f32>,
+    /// Vote Gaussian σ as a fraction of the fan radius. Default 0.5. Range (0, 10].
+    pub vote_sigma: f32,
+    /// Copy the matched colour at the finest level instead of voting (paper's last step).
+    /// Default true.
+    pub nearest_neighbor_final: bool,
+    /// Search rotations around the propagated one instead of all `A` (Barnes et al. 2010).
+    /// Default false (the paper's exhaustive search).
+    pub randomized_rotations: bool,
+    /// By-example mode (§5.3): which part of the target is painted. Default none.
+    pub example: Option<ExampleMask>,
+    /// Vertex count of the refined copy written for target primitives without UVs. Default
+    /// 100,000. Range 1..=4,000,000.
+    pub vertex_color_samples: usize,
+    /// Largest distance from a correspondence point to its surface, as a fraction of the
+    /// bounding-box diagonal. Default 0.02. Range (0, 1].
+    pub snap_tolerance: f32,
+    /// Relative weld tolerance of both surfaces. Default 1e-6.
+    pub weld_tolerance: f32,
+    /// Write the nearest-neighbour field artifact `nnf.bin`. Default true.
+    pub write_nnf: bool,
+}
+
+impl Default for MeshMatchParams {
+    fn default() -> Self {
+        Self {
+            samples: 65_536,
+            source_samples: None,
+            scale: ScaleMode::MatchArea,
+            min_vertices: 128,
+            iterations: 5,
+            convergence: 0.01,
+            rings: 3,
+            spokes: 18,
+            fan_radius: 3.0,
+            shape_features: ShapeFeatures::Auto,
+            hks: AutomaticFeatureParams::default(),
+            affinity: AffinityParams::default(),
+            feature_vertices: 8_000,
+            shape_weight: 1.0,
+            finest_shape_weight: None,
+            vote_sigma: 0.5,
+            nearest_neighbor_final: true,
+            randomized_rotations: false,
+            example: None,
+            vertex_color_samples: 100_000,
+            snap_tolerance: 0.02,
+            weld_tolerance: WeldParams::default().relative_tolerance,
+            write_nnf: true,
+        }
+    }
+}
+
+impl MeshMatchParams {
+    /// Reads and range-checks the parameters from the constraints' `params`.
+    pub fn from_constraints(c: &Constraints) -> Result<Self, ConstraintsError> {
+        let p: MeshMatchParams = c.method_params()?;
+        p.validate().map_err(|e| match e {
+            MeshMatchError::Param { name, message } => {
+                ConstraintsError::new(format!("params.{name}"), message)
+            }
+            other => ConstraintsError::new("params", other.to_string()),
+        })?;
+        Ok(p)
+    }
+
+    /// Checks every range.
+    pub fn validate(&self) -> Result<(), MeshMatchError> {
+        fn check(ok: bool, name: &'static str, value: String, range: &str) -> Result<(), MeshMatchError> {
+            if ok {
+                Ok(())
+            } else {
+                Err(MeshMatchError::Param {
+                    name,
+                    message: format!("{value} is outside the range {range}"),
+                })
+            }
+        }
+        let p = self;
+        check((256..=1_000_000).contains(&p.samples), "samples", p.samples.to_string(), "256..=1000000")?;
+        if let Some(s) = p.source_samples {
+            check((256..=1_000_000).contains(&s), "source_samples", s.to_string(), "256..=1000000")?;
+        }
+        check((16..=100_000).contains(&p.min_vertices), "min_vertices", p.min_vertices.to_string(), "16..=100000")?;
+        check((1..=100).contains(&p.iterations), "iterations", p.iterations.to_string(), "1..=100")?;
+        check((0.0..=1.0).contains(&p.convergence), "convergence", p.convergence.to_string(), "[0, 1]")?;
+        check((1..=8).contains(&p.rings), "rings", p.rings.to_string(), "1..=8")?;
+        check((4..=64).contains(&p.spokes), "spokes", p.spokes.to_string(), "4..=64")?;
+        check(p.fan_radius > 0.0 && p.fan_radius <= 20.0, "fan_radius", p.fan_radius.to_string(), "(0, 20]")?;
+        check((100..=1_000_000).contains(&p.feature_vertices), "feature_vertices", p.feature_vertices.to_string(), "100..=1000000")?;
+        check((0.0..=100.0).contains(&p.shape_weight), "shape_weight", p.shape_weight.to_string(), "[0, 100]")?;
+        if let Some(w) = p.finest_shape_weight {
+            check((0.0..=100.0).contains(&w), "finest_shape_weight", w.to_string(), "[0, 100]")?;
+        }
+        check(p.vote_sigma > 0.0 && p.vote_sigma <= 10.0, "vote_sigma", p.vote_sigma.to_string(), "(0, 10]")?;
+        check((1..=4_000_000).contains(&p.vertex_color_samples), "vertex_color_samples", p.vertex_color_samples.to_string(), "1..=4000000")?;
+        check(p.snap_tolerance > 0.0 && p.snap_tolerance <= 1.0, "snap_tolerance", p.snap_tolerance.to_string(), "(0, 1]")?;
+        if let Some(up) = p.hks.up {
+            check(up.iter().all(|x| x.is_finite()) && up.iter().any(|x| *x != 0.0), "hks", format!("up {up:?}"), "a finite non-zero vector")?;
+        }
+        Ok(())
+    }
+}
+
+/// Failures of `meshmatch`.
+#[derive(Debug, thiserror::Error)]
+pub enum MeshMatchError {
+    /// A parameter is out of range or inconsistent.
+    #[error("params.{name}: {message}")]
+    Param {
+        /// Field name.
+        name: &'static str,
+        /// What is wrong.
+        message: String,
+    },
+    /// The constraints are invalid (a correspondence, the example mask).
+    #[error(transparent)]
+    Constraints(#[from] ConstraintsError),
+    /// A surface could not be built.
+    #[error("{side}: {source}")]
+    Mesh {
+        /// "source" or "target".
+        side: &'static str,
+        /// The cause.
+        source: crate::engine::mesh::MeshError,
+    },
+    /// Resampling failed.
+    #[error(transparent)]
+    Resample(#[from] crate::engine::multires::ResampleError),
+    /// The hierarchy failed.
+    #[error(transparent)]
+    Hierarchy(#[from] crate::engine::multires::HierarchyError),
+    /// Shape features failed.
+    #[error(transparent)]
+    Features(#[from] features::FeatureError),
+    /// Fans failed.
+    #[error(transparent)]
+    Fans(#[from] crate::engine::geometry::fans::FanError),
+    /// Charts failed.
+    #[error(transparent)]
+    Charts(#[from] crate::engine::geometry::expmap::ExpMapError),
+    /// Cancelled through the Control.
+    #[error("cancelled")]
+    Cancelled,
+}
+
+impl From<Cancelled> for MeshMatchError {
+    fn from(_: Cancelled) -> Self {
+        MeshMatchError::Cancelled
+    }
+}
+
+impl MeshMatchError {
+    /// Whether this is a cancellation (also when wrapped by a sub-step).
+    pub fn is_cancelled(&self) -> bool {
+        use crate::engine::geometry::expmap::ExpMapError;
+        use crate::engine::geometry::fans::FanError;
+        use crate::engine::multires::{HierarchyError, ResampleError};
+        matches!(
+            self,
+            MeshMatchError::Cancelled
+                | MeshMatchError::Hierarchy(HierarchyError::Cancelled)
+                | MeshMatchError::Resample(ResampleError::Cancelled)
+                | MeshMatchError::Fans(FanError::Cancelled)
+                | MeshMatchError::Charts(ExpMapError::Cancelled)
+        ) || matches!(self, MeshMatchError::Features(f) if f.to_string() == "cancelled")
+    }
+}

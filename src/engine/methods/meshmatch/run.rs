@@ -1,0 +1,232 @@
+//! `meshmatch` from glTF to glTF (Chen et al. 2012, Figure 2 end to end): weld both assets into
+//! surfaces, build the synthesis meshes and the source colours, resolve the correspondences,
+//! scale the source ([`ScaleMode`]), run [`synthesize`], and write the synthesized colours into
+//! the target through the shared output path ([`write_color_field`]: baked base-colour textures
+//! for primitives with UVs, COLOR_0 on a refined copy otherwise). The target texel at a surface
+//! point takes the barycentric interpolation of the synthesis vertex colours there.
+//!
+//! By-example mode (§5.3, `params.example`): the *target* asset is both the example and the
+//! canvas; the source upload is not read (send the same file twice).
+
+use serde::Serialize;
+
+use crate::engine::asset::constraints::Constraints;
+use crate::engine::asset::export::Edits;
+use crate::engine::asset::Asset;
+use crate::engine::control::Control;
+use crate::engine::mesh::{build_surface, Surface, WeldParams};
+use crate::engine::methods::color_output::{write_color_field, ColorField, ColorOutputReport};
+use crate::engine::methods::correspondence::{resolve, Side};
+use crate::engine::spatial::Bvh;
+
+use super::example::painted_vertices;
+use super::nnf_file::NnfFile;
+use super::synthesis::{synthesis_colors, synthesis_mesh};
+use super::synthesize::{synthesize, MatchInput, MatchReport, PointPair};
+use super::{MeshMatchError, MeshMatchParams, ScaleMode};
+
+/// The job report of `meshmatch`.
+#[derive(Clone, Debug, Serialize)]
+pub struct MeshMatchReport {
+    /// Target synthesis vertices.
+    pub target_samples: usize,
+    /// Source synthesis vertices.
+    pub source_samples: usize,
+    /// Scale applied to the source.
+    pub source_scale: f32,
+    /// Correspondences used.
+    pub correspondences: usize,
+    /// Painted synthesis vertices (by-example mode).
+    pub painted_samples: Option<usize>,
+    /// The optimization.
+    pub synthesis: MatchReport,
+    /// What was written into the target.
+    pub output: ColorOutputReport,
+    /// Things the user should know.
+    pub warnings: Vec<String>,
+    /// Wall-clock milliseconds per stage.
+    pub timings_ms: Vec<(String, f64)>,
+}
+
+/// The synthesized colours on the target synthesis mesh, as a field over the target surface.
+struct SynthesizedField {
+    surface: Surface,
+    bvh: Bvh,
+    colors: Vec<[f32; 3]>,
+}
+
+impl ColorField for SynthesizedField {
+    fn color_at(&self, p: [f32; 3], _normal: [f32; 3], hint: Option<u32>) -> Option<([f32; 4], u32)> {
+        let mut bound = f32::INFINITY;
+        if let Some(h) = hint {
+            let [a, b, c] = self.surface.face_positions(h as usize);
+            let (d2, _, _) = crate::engine::spatial::point_triangle_distance_squared(p, a, b, c);
+            bound = d2.sqrt() * (1.0 + 1e-4) + 1e-12;
+        }
+        let hit = self.bvh.closest_point(p, bound)?;
+        let f = self.surface.faces[hit.face as usize];
+        let mut c = [0.0f32, 0.0, 0.0, 1.0];
+        for k in 0..3 {
+            for ch in 0..3 {
+                c[ch] += hit.bary[k] * self.colors[f[k] as usize][ch];
+            }
+        }
+        Some((c, hit.face))
+    }
+}
+
+/// Runs `meshmatch`: returns the edits for the target, the report and the NNF artifact bytes.
+///
+/// # Errors
+/// [`MeshMatchError`].
+pub fn run(
+    source: &Asset,
+    target: &Asset,
+    constraints: &Constraints,
+    params: &MeshMatchParams,
+    control: &Control,
+) -> Result<(Edits, MeshMatchReport, Option<Vec<u8>>), MeshMatchError> {
+    let mut timings = Vec::new();
+    let mut clock = std::time::Instant::now();
+    let mut lap = |name: &str, timings: &mut Vec<(String, f64)>| {
+        let now = std::time::Instant::now();
+        timings.push((name.to_string(), (now - clock).as_secs_f64() * 1e3));
+        clock = now;
+    };
+    let mut warnings = Vec::new();
+    let weld = WeldParams {
+        relative_tolerance: params.weld_tolerance,
+    };
+    control.stage("surface", 0)?;
+    let by_example = params.example.is_some();
+    let tgt_surface = build_surface(target, &weld).map_err(|source| MeshMatchError::Mesh {
+        side: "target",
+        source,
+    })?;
+    let (src_asset, src_surface) = if by_example {
+        warnings.push("by-example mode: the target is the example; the source upload was not read".into());
+        (target, tgt_surface.clone())
+    } else {
+        let s = build_surface(source, &weld).map_err(|source| MeshMatchError::Mesh {
+            side: "source",
+            source,
+        })?;
+        (source, s)
+    };
+    let (area_s, area_t) = (src_surface.area(), tgt_surface.area());
+    if !(area_s > 0.0 && area_t > 0.0) {
+        return Err(MeshMatchError::Param {
+            name: "samples",
+            message: "a surface has zero area".into(),
+        });
+    }
+    let scale = match (params.scale, by_example) {
+        (_, true) | (ScaleMode::World, _) => 1.0f32,
+        (ScaleMode::MatchArea, false) => (area_t / area_s).sqrt() as f32,
+    };
+    let source_samples = if by_example {
+        params.samples
+    } else {
+        params.source_samples.unwrap_or_else(|| {
+            let scaled_area = area_s * (scale as f64).powi(2);
+            ((params.samples as f64 * scaled_area / area_t).round() as usize)
+                .clamp(256, 4 * params.samples)
+        })
+    };
+    // Correspondences onto the input surfaces.
+    let mut pairs = Vec::new();
+    if !constraints.correspondences.is_empty() {
+        let (sb, tb) = (
+            Bvh::build(&src_surface.positions, &src_surface.faces),
+            Bvh::build(&tgt_surface.positions, &tgt_surface.faces),
+        );
+        let resolved = resolve(
+            &constraints.correspondences,
+            &Side {
+                asset: src_asset,
+                bvh: &sb,
+                tolerance: params.snap_tolerance * src_surface.diagonal(),
+            },
+            &Side {
+                asset: target,
+                bvh: &tb,
+                tolerance: params.snap_tolerance * tgt_surface.diagonal(),
+            },
+        )?;
+        for r in resolved {
+            pairs.push(PointPair {
+                source: vec![r.source.position.map(|x| x * scale)],
+                target: r.targets.iter().map(|t| t.position).collect(),
+            });
+        }
+    }
+    lap("surface", &mut timings);
+
+    control.stage("synthesis meshes", 0)?;
+    let tgt_mesh = synthesis_mesh(&tgt_surface, params.samples, control)?;
+    let src_mesh = if by_example {
+        tgt_mesh.clone()
+    } else {
+        synthesis_mesh(&src_surface, source_samples, control)?
+    };
+    let source_colors = synthesis_colors(src_asset, &src_surface, &src_mesh);
+    let painted = match &params.example {
+        Some(mask) => Some(painted_vertices(mask, target, &tgt_surface, &tgt_mesh)?),
+        None => None,
+    };
+    let mut scaled_source = src_mesh.surface.clone();
+    for p in scaled_source.positions.iter_mut() {
+        *p = p.map(|x| x * scale);
+    }
+    lap("synthesis_meshes", &mut timings);
+
+    let out = synthesize(
+        &MatchInput {
+            source: &scaled_source,
+            source_colors: &source_colors,
+            target: &tgt_mesh.surface,
+            correspondences: &pairs,
+            painted: painted.as_deref(),
+        },
+        params,
+        constraints.seed,
+        control,
+    )?;
+    lap("synthesize", &mut timings);
+
+    let nnf_bytes = params.write_nnf.then(|| {
+        NnfFile {
+            spokes: params.spokes as u32,
+            source_scale: scale,
+            target_positions: tgt_mesh.surface.positions.clone(),
+            source_positions: src_mesh.surface.positions.clone(),
+            nnf: out.nnf.clone(),
+        }
+        .encode()
+    });
+    let field = SynthesizedField {
+        bvh: Bvh::build(&tgt_mesh.surface.positions, &tgt_mesh.surface.faces),
+        surface: tgt_mesh.surface,
+        colors: out.colors,
+    };
+    let (edits, output) = write_color_field(
+        target,
+        constraints,
+        params.vertex_color_samples,
+        &field,
+        control,
+    )?;
+    lap("output", &mut timings);
+    let report = MeshMatchReport {
+        target_samples: field.surface.vertex_count(),
+        source_samples: src_mesh.surface.vertex_count(),
+        source_scale: scale,
+        correspondences: pairs.len(),
+        painted_samples: painted.map(|p| p.iter().filter(|x| **x).count()),
+        synthesis: out.report,
+        output,
+        warnings,
+        timings_ms: timings,
+    };
+    Ok((edits, report, nnf_bytes))
+}

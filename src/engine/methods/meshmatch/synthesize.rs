@@ -1,0 +1,555 @@
+//! The MeshMatch optimization on two synthesis meshes (Chen et al. 2012, §4, Figure 2): build both
+//! hierarchies, compute the shape features (§4.1: HKS + up, or geodesic affinities to the
+//! correspondences, or both), then coarse to fine: initialize the nearest-neighbour field at
+//! random on the coarsest level or upsample it from the coarser one (Figure 6), vote the target
+//! colours, and iterate EM — E-step propagation and random search ([`super::matcher`]), M-step
+//! voting ([`super::vote`]) — until the field stabilizes or `iterations` passes ran. At the finest
+//! level the colours are finally copied from the matches (nearest-neighbour reconstruction) unless
+//! disabled.
+//!
+//! Colours are matched in units of their standard deviation over the source; each shape dimension
+//! is divided by its standard deviation over the source and the shape block is weighted so that,
+//! with `shape_weight = 1`, shape and colour count equally after normalizing for dimension and
+//! variance (§5.2). The shape weight can be lowered towards the finest level (§5.2: "lower shape
+//! weighting at finer scales").
+//!
+//! By-example mode (§5.3): source and target are the same mesh; painted vertices keep their colour
+//! and matches may only use painted vertices whose whole fan lies in the painted region.
+
+use std::time::Instant;
+
+use serde::Serialize;
+
+use crate::engine::control::Control;
+use crate::engine::geometry::fans::{FanParams, FanSampler, FieldRef};
+use crate::engine::geometry::expmap::RadiusUnit;
+use crate::engine::geometry::heat::Source;
+use crate::engine::mesh::Surface;
+use crate::engine::multires::SplitMix64;
+
+use super::features::{automatic_features, geodesic_affinities, AffinityPair, AffinityReport};
+use super::levels::{erode, MeshLevels};
+use super::matcher::{bfs_order, components, mix, EStep, Nnf, PatchSpace};
+use super::upsample::{upsample, Side};
+use super::vote::{nearest_neighbour_colors, vote, SourcePatches, VoteStencil};
+use super::{MeshMatchError, MeshMatchParams, ShapeFeatures};
+
+/// One correspondence as world points on the synthesis meshes: source point(s), target point(s).
+#[derive(Clone, Debug, PartialEq)]
+pub struct PointPair {
+    /// Source point(s).
+    pub source: Vec<[f32; 3]>,
+    /// Target point(s) (several: a one-to-many correspondence).
+    pub target: Vec<[f32; 3]>,
+}
+
+/// What [`synthesize`] works on.
+pub struct MatchInput<'a> {
+    /// The source synthesis mesh.
+    pub source: &'a Surface,
+    /// Linear RGB per source vertex.
+    pub source_colors: &'a [[f32; 3]],
+    /// The target synthesis mesh (the same as `source` in by-example mode).
+    pub target: &'a Surface,
+    /// Correspondences.
+    pub correspondences: &'a [PointPair],
+    /// By-example mode: the painted vertices of the (shared) mesh.
+    pub painted: Option<&'a [bool]>,
+}
+
+/// One EM iteration.
+#[derive(Clone, Debug, Serialize)]
+pub struct IterationReport {
+    /// Mean patch dissimilarity after the E-step.
+    pub energy: f64,
+    /// Matches changed by propagation.
+    pub propagated: usize,
+    /// Matches changed by random search.
+    pub searched: usize,
+    /// Milliseconds: target fans, E-step, vote.
+    pub fans_ms: f64,
+    /// E-step milliseconds (refresh + propagation + random search).
+    pub e_step_ms: f64,
+    /// Vote milliseconds.
+    pub vote_ms: f64,
+}
+
+/// One level.
+#[derive(Clone, Debug, Serialize)]
+pub struct LevelReport {
+    /// Level index (0 = finest).
+    pub level: usize,
+    /// Target vertices.
+    pub target_vertices: usize,
+    /// Source vertices.
+    pub source_vertices: usize,
+    /// Fan radius, world units.
+    pub fan_radius: f32,
+    /// Shape weight used.
+    pub shape_weight: f32,
+    /// Iterations run.
+    pub iterations: Vec<IterationReport>,
+    /// Whether the field stabilized before the iteration limit.
+    pub converged: bool,
+    /// Milliseconds for the whole level (including source fans and the vote stencil).
+    pub ms: f64,
+}
+
+/// Figures of a synthesis.
+#[derive(Clone, Debug, Serialize)]
+pub struct MatchReport {
+    /// Levels used, coarsest first.
+    pub levels: Vec<LevelReport>,
+    /// Shape dimensions per vertex (HKS + up, affinities).
+    pub shape_dims: usize,
+    /// Which features were used.
+    pub features: &'static str,
+    /// The correspondence transform, when affinities were used.
+    pub affinity: Option<AffinityReport>,
+    /// Milliseconds: hierarchies.
+    pub hierarchy_ms: f64,
+    /// Milliseconds: shape features.
+    pub features_ms: f64,
+    /// Milliseconds: everything.
+    pub total_ms: f64,
+}
+
+/// The result: colours of the target synthesis vertices and the finest field.
+pub struct MatchOutput {
+    /// Linear RGB per target synthesis vertex.
+    pub colors: Vec<[f32; 3]>,
+    /// The finest nearest-neighbour field.
+    pub nnf: Nnf,
+    /// Figures.
+    pub report: MatchReport,
+}
+
+fn ms(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+fn std_per_dim(values: &[f32], dim: usize) -> Vec<f32> {
+    let n = values.len() / dim.max(1);
+    (0..dim)
+        .map(|k| {
+            let mean = (0..n).map(|v| values[v * dim + k] as f64).sum::<f64>() / n.max(1) as f64;
+            let var = (0..n)
+                .map(|v| (values[v * dim + k] as f64 - mean).powi(2))
+                .sum::<f64>()
+                / n.max(1) as f64;
+            var.sqrt() as f32
+        })
+        .collect()
+}
+
+/// Shape features of both meshes on their feature levels, spread over all levels.
+struct Shapes {
+    dim: usize,
+    source: Vec<Vec<f32>>,
+    target: Vec<Vec<f32>>,
+    affinity: Option<AffinityReport>,
+    kind: &'static str,
+}
+
+fn shape_features(
+    input: &MatchInput<'_>,
+    src: &MeshLevels,
+    tgt: &MeshLevels,
+    params: &MeshMatchParams,
+    control: &Control,
+) -> Result<Shapes, MeshMatchError> {
+    let use_affinity = match params.shape_features {
+        ShapeFeatures::Auto => !input.correspondences.is_empty(),
+        ShapeFeatures::Affinity | ShapeFeatures::Both => true,
+        ShapeFeatures::Automatic | ShapeFeatures::None => false,
+    };
+    let use_auto = match params.shape_features {
+        ShapeFeatures::Auto => input.correspondences.is_empty(),
+        ShapeFeatures::Automatic | ShapeFeatures::Both => true,
+        ShapeFeatures::Affinity | ShapeFeatures::None => false,
+    };
+    if use_affinity && input.correspondences.is_empty() {
+        return Err(MeshMatchError::Param {
+            name: "shape_features",
+            message: "geodesic affinities need correspondences".into(),
+        });
+    }
+    let fs = src.level_with_at_most(params.feature_vertices);
+    let ft = tgt.level_with_at_most(params.feature_vertices);
+    let mut src_parts: Vec<(usize, Vec<f32>)> = Vec::new();
+    let mut tgt_parts: Vec<(usize, Vec<f32>)> = Vec::new();
+    let mut affinity = None;
+    if use_auto {
+        let a = automatic_features(src.surface(fs), &params.hks, control)?;
+        let b = if input.painted.is_some() {
+            a.clone()
+        } else {
+            automatic_features(tgt.surface(ft), &params.hks, control)?
+        };
+        src_parts.push((a.dim, a.values));
+        tgt_parts.push((b.dim, b.values));
+    }
+    if use_affinity {
+        let locate = |levels: &MeshLevels, level: usize, p: [f32; 3]| -> Source {
+            match levels.bvh[level].closest_point(p, f32::INFINITY) {
+                Some(h) => Source::Point {
+                    face: h.face,
+                    bary: h.bary.map(f64::from),
+                },
+                None => Source::Vertex(0),
+            }
+        };
+        let pairs: Vec<AffinityPair> = input
+            .correspondences
+            .iter()
+            .map(|c| AffinityPair {
+                source: c.source.iter().map(|&p| locate(src, fs, p)).collect(),
+                target: c.target.iter().map(|&p| locate(tgt, ft, p)).collect(),
+            })
+            .collect();
+        let (a, b, report) = geodesic_affinities(
+            src.surface(fs),
+            tgt.surface(ft),
+            &pairs,
+            &params.affinity,
+            control,
+        )?;
+        src_parts.push((a.dim, a.values));
+        tgt_parts.push((b.dim, b.values));
+        affinity = Some(report);
+    }
+    let dim: usize = src_parts.iter().map(|p| p.0).sum();
+    let interleave = |parts: &[(usize, Vec<f32>)], n: usize| -> Vec<f32> {
+        let mut out = Vec::with_capacity(n * dim);
+        for v in 0..n {
+            for (d, values) in parts {
+                out.extend_from_slice(&values[v * d..(v + 1) * d]);
+            }
+        }
+        out
+    };
+    let ns = src.surface(fs).vertex_count();
+    let nt = tgt.surface(ft).vertex_count();
+    let kind = match (use_auto, use_affinity) {
+        (true, true) => "hks+up, geodesic affinities",
+        (true, false) => "hks+up",
+        (false, true) => "geodesic affinities",
+        (false, false) => "none",
+    };
+    if dim == 0 {
+        return Ok(Shapes {
+            dim: 0,
+            source: vec![Vec::new(); src.len()],
+            target: vec![Vec::new(); tgt.len()],
+            affinity,
+            kind,
+        });
+    }
+    Ok(Shapes {
+        dim,
+        source: src.spread(fs, dim, interleave(&src_parts, ns)),
+        target: tgt.spread(ft, dim, interleave(&tgt_parts, nt)),
+        affinity,
+        kind,
+    })
+}
+
+/// Runs MeshMatch (see the module docs).
+///
+/// # Errors
+/// [`MeshMatchError`] for bad parameters or meshes, failed features, or cancellation.
+pub fn synthesize(
+    input: &MatchInput<'_>,
+    params: &MeshMatchParams,
+    seed: u64,
+    control: &Control,
+) -> Result<MatchOutput, MeshMatchError> {
+    params.validate()?;
+    let start = Instant::now();
+    if input.source_colors.len() != input.source.vertex_count() {
+        return Err(MeshMatchError::Param {
+            name: "source_colors",
+            message: format!(
+                "{} colours for {} vertices",
+                input.source_colors.len(),
+                input.source.vertex_count()
+            ),
+        });
+    }
+    let by_example = input.painted.is_some();
+    control.stage("meshmatch: hierarchy", 0)?;
+    let up = params.hks.up;
+    let src_levels = MeshLevels::build(input.source, params.min_vertices, up, control)?;
+    let tgt_owned = if by_example {
+        None
+    } else {
+        Some(MeshLevels::build(input.target, params.min_vertices, up, control)?)
+    };
+    let tgt_levels = tgt_owned.as_ref().unwrap_or(&src_levels);
+    let hierarchy_ms = ms(start);
+
+    let t_features = Instant::now();
+    control.stage("meshmatch: features", 0)?;
+    let shapes = shape_features(input, &src_levels, tgt_levels, params, control)?;
+    let features_ms = ms(t_features);
+
+    // Colour normalization (std over the source, all channels pooled).
+    let flat: Vec<f32> = input.source_colors.iter().flatten().copied().collect();
+    let color_std = {
+        let s = std_per_dim(&flat, 3);
+        ((s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) / 3.0).sqrt().max(1e-3)
+    };
+    let normalized: Vec<f32> = flat.iter().map(|x| x / color_std).collect();
+    let src_colors = src_levels.spread(0, 3, normalized);
+    // Shape normalization per dimension over the source.
+    let shape_std: Vec<f32> = if shapes.dim > 0 {
+        std_per_dim(&shapes.source[0], shapes.dim)
+            .into_iter()
+            .map(|s| if s > 1e-12 { s } else { 1.0 })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let fan_dims = (params.rings * params.spokes * 3) as f32;
+
+    let levels = src_levels.len().min(tgt_levels.len());
+    let top = levels - 1;
+    let painted_levels = input.painted.map(|p| tgt_levels.restrict_mask_all(p));
+    let allowed_levels: Option<Vec<Vec<bool>>> = painted_levels.as_ref().map(|pl| {
+        pl.iter()
+            .enumerate()
+            .map(|(l, m)| {
+                let e = erode(m, src_levels.rings(l), params.rings);
+                if e.iter().any(|&x| x) {
+                    e
+                } else {
+                    m.clone()
+                }
+            })
+            .collect()
+    });
+    if let Some(a) = &allowed_levels {
+        if !a[0].iter().any(|&x| x) {
+            return Err(MeshMatchError::Param {
+                name: "example",
+                message: "the example mask selects no vertex".into(),
+            });
+        }
+    }
+
+    let mut reports = Vec::new();
+    let mut nnf = Nnf::default();
+    let mut colors: Vec<[f32; 3]> = Vec::new();
+    for level in (0..levels).rev() {
+        let t_level = Instant::now();
+        control.stage(&format!("meshmatch: level {level}"), 0)?;
+        let src_surface = src_levels.surface(level);
+        let tgt_surface = tgt_levels.surface(level);
+        let (ns, nt) = (src_surface.vertex_count(), tgt_surface.vertex_count());
+        let radius = params.fan_radius * tgt_levels.mean_edge[level];
+        let fan_params = FanParams {
+            rings: params.rings,
+            spokes: params.spokes,
+            radius,
+            radius_unit: RadiusUnit::World,
+            ..Default::default()
+        };
+        let src_fans = FanSampler::new(src_surface, &src_levels.frames[level], &fan_params, control)?
+            .sample(
+                FieldRef {
+                    dim: 3,
+                    values: &src_colors[level],
+                },
+                control,
+            )?;
+        let tgt_sampler = FanSampler::new(tgt_surface, &tgt_levels.frames[level], &fan_params, control)?;
+        let stencil = VoteStencil::build(tgt_sampler.charts(), radius);
+        let centers: Vec<[f32; 3]> = src_colors[level]
+            .chunks_exact(3)
+            .map(|c| [c[0], c[1], c[2]])
+            .collect();
+        let weight = shape_weight_at(params, level, top);
+        let scale: Vec<f32> = shape_std
+            .iter()
+            .map(|s| (weight * fan_dims / shapes.dim.max(1) as f32).sqrt() / s)
+            .collect();
+        let scaled = |values: &[f32]| -> Vec<f32> {
+            values
+                .iter()
+                .enumerate()
+                .map(|(i, x)| x * scale[i % shapes.dim.max(1)])
+                .collect()
+        };
+        let (src_shape, tgt_shape) = if shapes.dim > 0 {
+            (scaled(&shapes.source[level]), scaled(&shapes.target[level]))
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        let allowed = allowed_levels.as_ref().map(|a| a[level].as_slice());
+        let fixed = painted_levels.as_ref().map(|p| p[level].as_slice());
+
+        // Initialize or upsample the field.
+        nnf = if level == top {
+            let pool: Vec<u32> = (0..ns as u32)
+                .filter(|&s| allowed.is_none_or(|a| a[s as usize]))
+                .collect();
+            let mut rng = SplitMix64::new(mix(seed, 0xC0A5, level as u64));
+            Nnf {
+                source: (0..nt)
+                    .map(|_| pool[rng.below(pool.len() as u64) as usize])
+                    .collect(),
+                rotation: (0..nt)
+                    .map(|_| rng.below(params.spokes as u64) as u16)
+                    .collect(),
+                distance: vec![f32::INFINITY; nt],
+            }
+        } else {
+            upsample(
+                &nnf,
+                level,
+                &Side {
+                    hierarchy: &tgt_levels.hierarchy,
+                    frames: &tgt_levels.frames,
+                },
+                &Side {
+                    hierarchy: &src_levels.hierarchy,
+                    frames: &src_levels.frames,
+                },
+                &src_levels.bvh[level],
+                params.spokes,
+                allowed,
+            )
+        };
+        if let Some(f) = fixed {
+            for (t, &is_fixed) in f.iter().enumerate() {
+                if is_fixed {
+                    nnf.source[t] = t as u32;
+                    nnf.rotation[t] = 0;
+                }
+            }
+        }
+        let patches = SourcePatches {
+            rings: params.rings,
+            spokes: params.spokes,
+            radius,
+            fans: &src_fans.data,
+            centers: &centers,
+        };
+        let keep = fixed.map(|f| (f, centers.as_slice()));
+        let sigma = params.vote_sigma * radius;
+        colors = vote(&stencil, &nnf, &patches, sigma, keep);
+
+        let (labels, firsts) = components(tgt_levels.rings(level), nt);
+        let mut rng = SplitMix64::new(mix(seed, 0x0bf5, level as u64));
+        // A random start inside each component.
+        let mut members: Vec<Vec<u32>> = vec![Vec::new(); firsts.len()];
+        for (v, &c) in labels.iter().enumerate() {
+            members[c as usize].push(v as u32);
+        }
+        let mut starts: Vec<u32> = members
+            .iter()
+            .map(|m| m[rng.below(m.len() as u64) as usize])
+            .collect();
+        let mut iterations = Vec::new();
+        let mut converged = false;
+        for it in 0..params.iterations {
+            control.check()?;
+            let t_fans = Instant::now();
+            let flat: Vec<f32> = colors.iter().flatten().copied().collect();
+            let tgt_fans = tgt_sampler.sample(
+                FieldRef {
+                    dim: 3,
+                    values: &flat,
+                },
+                control,
+            )?;
+            let fans_ms = ms(t_fans);
+            let t_e = Instant::now();
+            let step = EStep {
+                space: PatchSpace {
+                    fan: src_fans.shape(),
+                    target_fans: &tgt_fans.data,
+                    source_fans: &src_fans.data,
+                    target_shape: &tgt_shape,
+                    source_shape: &src_shape,
+                    shape_dim: shapes.dim,
+                    source_allowed: allowed,
+                },
+                target_adjacency: tgt_levels.rings(level),
+                source_adjacency: src_levels.rings(level),
+                source_hierarchy: &src_levels.hierarchy,
+                level,
+                randomized_rotations: params.randomized_rotations,
+                fixed,
+                seed: mix(seed, level as u64, it as u64),
+            };
+            step.refresh(&mut nnf);
+            control.check()?;
+            let order = bfs_order(tgt_levels.rings(level), &labels, &mut starts);
+            let propagated = step.propagate(&mut nnf, &order);
+            control.check()?;
+            let searched = step.random_search(&mut nnf);
+            let energy = nnf.energy();
+            let e_step_ms = ms(t_e);
+            control.check()?;
+            let t_v = Instant::now();
+            colors = vote(&stencil, &nnf, &patches, sigma, keep);
+            let vote_ms = ms(t_v);
+            iterations.push(IterationReport {
+                energy,
+                propagated,
+                searched,
+                fans_ms,
+                e_step_ms,
+                vote_ms,
+            });
+            let changed = (propagated + searched) as f32 / nt.max(1) as f32;
+            if it > 0 && changed < params.convergence {
+                converged = true;
+                break;
+            }
+        }
+        if level == 0 && params.nearest_neighbor_final {
+            colors = nearest_neighbour_colors(&nnf, &centers, keep);
+        }
+        reports.push(LevelReport {
+            level,
+            target_vertices: nt,
+            source_vertices: ns,
+            fan_radius: radius,
+            shape_weight: weight,
+            iterations,
+            converged,
+            ms: ms(t_level),
+        });
+    }
+    let colors = colors
+        .into_iter()
+        .map(|c| c.map(|x| (x * color_std).max(0.0)))
+        .collect();
+    Ok(MatchOutput {
+        colors,
+        nnf,
+        report: MatchReport {
+            levels: reports,
+            shape_dims: shapes.dim,
+            features: shapes.kind,
+            affinity: shapes.affinity,
+            hierarchy_ms,
+            features_ms,
+            total_ms: ms(start),
+        },
+    })
+}
+
+/// Shape weight of `level`: `shape_weight` on the coarsest level, `finest_shape_weight` on level 0,
+/// geometric in between.
+fn shape_weight_at(params: &MeshMatchParams, level: usize, top: usize) -> f32 {
+    let coarse = params.shape_weight;
+    let fine = params.finest_shape_weight.unwrap_or(coarse);
+    if top == 0 || coarse <= 0.0 || fine <= 0.0 {
+        return if level == 0 { fine } else { coarse };
+    }
+    let t = level as f32 / top as f32;
+    fine * (coarse / fine).powf(t)
+}
