@@ -2,4 +2,5 @@
 
 pub mod align;
 pub mod correspondence;
+pub mod meshmatch;
 pub mod project;

@@ -1,0 +1,3 @@
+//! MeshMatch (Chen et al. 2012).
+
+pub mod features;
