@@ -192,13 +192,48 @@ pub fn heat_kernel_signature(
             }
         })
         .collect();
+    heat_kernel_signature_at(spectrum, &times, params.normalization)
+}
+
+/// The Heat Kernel Signature at caller-chosen `times` (world units², e.g. a fixed set for
+/// surfaces normalized to unit area, so that two surfaces are evaluated at the same scales),
+/// with the column normalization of the module docs. `scales` of the result are `times`.
+///
+/// # Errors
+/// [`GeometryError::InvalidParam`] when `times` is empty, longer than 1000, or holds a value that
+/// is not finite and > 0; [`GeometryError::Degenerate`] when the spectrum is empty or its vectors
+/// do not match its mass.
+pub fn heat_kernel_signature_at(
+    spectrum: &Spectrum,
+    times: &[f64],
+    normalization: HksNormalization,
+) -> Result<Signature, GeometryError> {
+    let d = times.len();
+    if !(1..=1000).contains(&d) {
+        return Err(GeometryError::InvalidParam {
+            name: "times (count)",
+            value: d as f64,
+            range: "[1, 1000]",
+        });
+    }
+    if let Some(&t) = times.iter().find(|t| !(t.is_finite() && **t > 0.0)) {
+        return Err(GeometryError::InvalidParam {
+            name: "times",
+            value: t,
+            range: "(0, ∞)",
+        });
+    }
+    check_shape(spectrum)?;
+    if spectrum.is_empty() || spectrum.vertex_count() == 0 {
+        return Err(GeometryError::Degenerate("empty spectrum".into()));
+    }
     let weights: Vec<f64> = spectrum
         .values
         .iter()
         .flat_map(|&l| times.iter().map(move |&t| (-l * t).exp()))
         .collect();
     let mut values = weighted_squares(spectrum, &weights, d);
-    if params.normalization == HksNormalization::AreaMean {
+    if normalization == HksNormalization::AreaMean {
         let area: f64 = spectrum.mass.iter().sum();
         for j in 0..d {
             let trace: f64 = (0..spectrum.len()).map(|i| weights[i * d + j]).sum();
@@ -211,7 +246,7 @@ pub fn heat_kernel_signature(
         }
     }
     Ok(Signature {
-        scales: times,
+        scales: times.to_vec(),
         values,
     })
 }
