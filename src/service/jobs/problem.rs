@@ -10,8 +10,8 @@ use crate::engine::asset::constraints::ConstraintsError;
 use crate::engine::asset::export::ExportError;
 use crate::engine::asset::IngestError;
 use crate::engine::mesh::surface::MeshError;
-use crate::engine::methods::project::ProjectError;
 use crate::engine::methods::meshmatch::MeshMatchError;
+use crate::engine::methods::project::ProjectError;
 use crate::engine::pipeline::TransferError;
 use crate::service::model::Problem;
 

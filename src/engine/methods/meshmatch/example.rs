@@ -111,7 +111,10 @@ pub fn painted_vertices(
                     .ok_or_else(|| {
                         err(
                             &format!(".faces[{i}]"),
-                            format!("mesh {} primitive {} does not exist", set.mesh, set.primitive),
+                            format!(
+                                "mesh {} primitive {} does not exist",
+                                set.mesh, set.primitive
+                            ),
                         )
                     })?;
                 let count = asset.primitives[prim].triangles.len();
@@ -175,14 +178,20 @@ pub fn painted_vertices(
             let image = asset.images.get(*index).ok_or_else(|| {
                 err(
                     ".image.index",
-                    format!("image {index} does not exist (the asset has {})", asset.images.len()),
+                    format!(
+                        "image {index} does not exist (the asset has {})",
+                        asset.images.len()
+                    ),
                 )
             })?;
             let decoded = match &image.decoded {
                 Some(d) => d.clone(),
                 None => {
                     let format = sniff(&image.bytes).ok_or_else(|| {
-                        err(".image.index", format!("image {index} is neither PNG nor JPEG"))
+                        err(
+                            ".image.index",
+                            format!("image {index} is neither PNG nor JPEG"),
+                        )
                     })?;
                     std::sync::Arc::new(
                         decode_rgba8(*index, &image.bytes, format, &IngestLimits::default())
@@ -220,7 +229,10 @@ fn check_threshold(t: f32) -> Result<(), ConstraintsError> {
     if (0.0..=1.0).contains(&t) {
         Ok(())
     } else {
-        Err(err(".threshold", format!("{t} is outside the range [0, 1]")))
+        Err(err(
+            ".threshold",
+            format!("{t} is outside the range [0, 1]"),
+        ))
     }
 }
 

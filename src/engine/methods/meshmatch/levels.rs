@@ -138,7 +138,10 @@ impl MeshLevels {
                     return;
                 }
                 for &c in children {
-                    for (x, y) in o.iter_mut().zip(&fine[c as usize * dim..(c as usize + 1) * dim]) {
+                    for (x, y) in o
+                        .iter_mut()
+                        .zip(&fine[c as usize * dim..(c as usize + 1) * dim])
+                    {
                         *x += y;
                     }
                 }

@@ -103,7 +103,13 @@ impl PatchSpace<'_> {
 
     /// The best rotation and dissimilarity of target `t` against source `s`, or `None` when it is
     /// not below `bound`.
-    pub fn evaluate(&self, t: usize, s: usize, rotations: Rotations, bound: f32) -> Option<(u16, f32)> {
+    pub fn evaluate(
+        &self,
+        t: usize,
+        s: usize,
+        rotations: Rotations,
+        bound: f32,
+    ) -> Option<(u16, f32)> {
         let shape = self.shape_distance(t, s);
         if shape >= bound {
             return None;
@@ -157,7 +163,8 @@ pub struct EStep<'a> {
 
 /// Mixes a seed with indices (SplitMix64 finalizer).
 pub fn mix(seed: u64, a: u64, b: u64) -> u64 {
-    let mut z = seed ^ a.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ b.wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+    let mut z =
+        seed ^ a.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ b.wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
     z ^ (z >> 31)
@@ -216,7 +223,11 @@ impl EStep<'_> {
             .iter()
             .map(|&v| {
                 let v = v as usize;
-                (snapshot.source[v], snapshot.rotation[v], snapshot.distance[v])
+                (
+                    snapshot.source[v],
+                    snapshot.rotation[v],
+                    snapshot.distance[v],
+                )
             })
             .collect();
         let changed: usize = perm
@@ -290,15 +301,16 @@ impl EStep<'_> {
                 }
                 let mut rng = SplitMix64::new(mix(self.seed, 3, t as u64));
                 let start = *s;
-                let consider = |c: u32, rng: &mut SplitMix64, s: &mut u32, k: &mut u16, d: &mut f32| {
-                    if c == *s || !self.space.allowed(c as usize) {
-                        return;
-                    }
-                    let r = self.rotations(*k, rng);
-                    if let Some((nk, nd)) = self.space.evaluate(t, c as usize, r, *d) {
-                        (*s, *k, *d) = (c, nk, nd);
-                    }
-                };
+                let consider =
+                    |c: u32, rng: &mut SplitMix64, s: &mut u32, k: &mut u16, d: &mut f32| {
+                        if c == *s || !self.space.allowed(c as usize) {
+                            return;
+                        }
+                        let r = self.rotations(*k, rng);
+                        if let Some((nk, nd)) = self.space.evaluate(t, c as usize, r, *d) {
+                            (*s, *k, *d) = (c, nk, nd);
+                        }
+                    };
                 for j in 1..=(top - self.level) {
                     let ancestor = h.ancestor(self.level, *s, j);
                     let c = h.random_descendant(self.level + j, ancestor, j, &mut rng);

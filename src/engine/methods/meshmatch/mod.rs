@@ -173,7 +173,12 @@ impl MeshMatchParams {
 
     /// Checks every range.
     pub fn validate(&self) -> Result<(), MeshMatchError> {
-        fn check(ok: bool, name: &'static str, value: String, range: &str) -> Result<(), MeshMatchError> {
+        fn check(
+            ok: bool,
+            name: &'static str,
+            value: String,
+            range: &str,
+        ) -> Result<(), MeshMatchError> {
             if ok {
                 Ok(())
             } else {
@@ -184,26 +189,101 @@ impl MeshMatchParams {
             }
         }
         let p = self;
-        check((256..=1_000_000).contains(&p.samples), "samples", p.samples.to_string(), "256..=1000000")?;
+        check(
+            (256..=1_000_000).contains(&p.samples),
+            "samples",
+            p.samples.to_string(),
+            "256..=1000000",
+        )?;
         if let Some(s) = p.source_samples {
-            check((256..=1_000_000).contains(&s), "source_samples", s.to_string(), "256..=1000000")?;
+            check(
+                (256..=1_000_000).contains(&s),
+                "source_samples",
+                s.to_string(),
+                "256..=1000000",
+            )?;
         }
-        check((16..=100_000).contains(&p.min_vertices), "min_vertices", p.min_vertices.to_string(), "16..=100000")?;
-        check((1..=100).contains(&p.iterations), "iterations", p.iterations.to_string(), "1..=100")?;
-        check((0.0..=1.0).contains(&p.convergence), "convergence", p.convergence.to_string(), "[0, 1]")?;
-        check((1..=8).contains(&p.rings), "rings", p.rings.to_string(), "1..=8")?;
-        check((4..=64).contains(&p.spokes), "spokes", p.spokes.to_string(), "4..=64")?;
-        check(p.fan_radius > 0.0 && p.fan_radius <= 20.0, "fan_radius", p.fan_radius.to_string(), "(0, 20]")?;
-        check((100..=1_000_000).contains(&p.feature_vertices), "feature_vertices", p.feature_vertices.to_string(), "100..=1000000")?;
-        check((0.0..=100.0).contains(&p.shape_weight), "shape_weight", p.shape_weight.to_string(), "[0, 100]")?;
+        check(
+            (16..=100_000).contains(&p.min_vertices),
+            "min_vertices",
+            p.min_vertices.to_string(),
+            "16..=100000",
+        )?;
+        check(
+            (1..=100).contains(&p.iterations),
+            "iterations",
+            p.iterations.to_string(),
+            "1..=100",
+        )?;
+        check(
+            (0.0..=1.0).contains(&p.convergence),
+            "convergence",
+            p.convergence.to_string(),
+            "[0, 1]",
+        )?;
+        check(
+            (1..=8).contains(&p.rings),
+            "rings",
+            p.rings.to_string(),
+            "1..=8",
+        )?;
+        check(
+            (4..=64).contains(&p.spokes),
+            "spokes",
+            p.spokes.to_string(),
+            "4..=64",
+        )?;
+        check(
+            p.fan_radius > 0.0 && p.fan_radius <= 20.0,
+            "fan_radius",
+            p.fan_radius.to_string(),
+            "(0, 20]",
+        )?;
+        check(
+            (100..=1_000_000).contains(&p.feature_vertices),
+            "feature_vertices",
+            p.feature_vertices.to_string(),
+            "100..=1000000",
+        )?;
+        check(
+            (0.0..=100.0).contains(&p.shape_weight),
+            "shape_weight",
+            p.shape_weight.to_string(),
+            "[0, 100]",
+        )?;
         if let Some(w) = p.finest_shape_weight {
-            check((0.0..=100.0).contains(&w), "finest_shape_weight", w.to_string(), "[0, 100]")?;
+            check(
+                (0.0..=100.0).contains(&w),
+                "finest_shape_weight",
+                w.to_string(),
+                "[0, 100]",
+            )?;
         }
-        check(p.vote_sigma > 0.0 && p.vote_sigma <= 10.0, "vote_sigma", p.vote_sigma.to_string(), "(0, 10]")?;
-        check((1..=4_000_000).contains(&p.vertex_color_samples), "vertex_color_samples", p.vertex_color_samples.to_string(), "1..=4000000")?;
-        check(p.snap_tolerance > 0.0 && p.snap_tolerance <= 1.0, "snap_tolerance", p.snap_tolerance.to_string(), "(0, 1]")?;
+        check(
+            p.vote_sigma > 0.0 && p.vote_sigma <= 10.0,
+            "vote_sigma",
+            p.vote_sigma.to_string(),
+            "(0, 10]",
+        )?;
+        check(
+            (1..=4_000_000).contains(&p.vertex_color_samples),
+            "vertex_color_samples",
+            p.vertex_color_samples.to_string(),
+            "1..=4000000",
+        )?;
+        check(
+            p.snap_tolerance > 0.0 && p.snap_tolerance <= 1.0,
+            "snap_tolerance",
+            p.snap_tolerance.to_string(),
+            "(0, 1]",
+        )?;
         if let Some(up) = p.hks.up {
-            check(up.iter().all(|x| x.is_finite()) && up.iter().any(|x| *x != 0.0), "hks", format!("up {up:?}"), "a finite non-zero vector")?;
+            check(
+                up.iter().all(|x| x.is_finite()) && up.iter().any(|x| *x != 0.0),
+                "hks",
+                format!("up {up:?}"),
+                "a finite non-zero vector",
+            )?;
         }
         Ok(())
     }
@@ -270,6 +350,6 @@ impl MeshMatchError {
                 | MeshMatchError::Resample(ResampleError::Cancelled)
                 | MeshMatchError::Fans(FanError::Cancelled)
                 | MeshMatchError::Charts(ExpMapError::Cancelled)
-        ) || matches!(self, MeshMatchError::Features(f) if f.to_string() == "cancelled")
+        ) || matches!(self, MeshMatchError::Features(features::FeatureError::Cancelled(_)))
     }
 }

@@ -56,7 +56,12 @@ struct SynthesizedField {
 }
 
 impl ColorField for SynthesizedField {
-    fn color_at(&self, p: [f32; 3], _normal: [f32; 3], hint: Option<u32>) -> Option<([f32; 4], u32)> {
+    fn color_at(
+        &self,
+        p: [f32; 3],
+        _normal: [f32; 3],
+        hint: Option<u32>,
+    ) -> Option<([f32; 4], u32)> {
         let mut bound = f32::INFINITY;
         if let Some(h) = hint {
             let [a, b, c] = self.surface.face_positions(h as usize);
@@ -104,7 +109,9 @@ pub fn run(
         source,
     })?;
     let (src_asset, src_surface) = if by_example {
-        warnings.push("by-example mode: the target is the example; the source upload was not read".into());
+        warnings.push(
+            "by-example mode: the target is the example; the source upload was not read".into(),
+        );
         (target, tgt_surface.clone())
     } else {
         let s = build_surface(source, &weld).map_err(|source| MeshMatchError::Mesh {

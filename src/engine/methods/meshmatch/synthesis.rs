@@ -102,11 +102,7 @@ pub fn input_color(
 }
 
 /// Box-filtered base color of every synthesis vertex (see the module docs), linear RGB.
-pub fn synthesis_colors(
-    asset: &Asset,
-    input: &Surface,
-    mesh: &SynthesisMesh,
-) -> Vec<[f32; 3]> {
+pub fn synthesis_colors(asset: &Asset, input: &Surface, mesh: &SynthesisMesh) -> Vec<[f32; 3]> {
     let sampler = MaterialSampler::new(asset);
     let s = &mesh.surface;
     let nv = s.vertex_count();
@@ -149,9 +145,8 @@ pub fn synthesis_colors(
             }
             for &f in faces {
                 let t = s.face_positions(f as usize);
-                let q: [f32; 3] = std::array::from_fn(|k| {
-                    0.5 * p[k] + (t[0][k] + t[1][k] + t[2][k]) / 6.0
-                });
+                let q: [f32; 3] =
+                    std::array::from_fn(|k| 0.5 * p[k] + (t[0][k] + t[1][k] + t[2][k]) / 6.0);
                 let c = color_at(f as usize, q);
                 for k in 0..3 {
                     sum[k] += c[k];

@@ -21,8 +21,8 @@ use std::time::Instant;
 use serde::Serialize;
 
 use crate::engine::control::Control;
-use crate::engine::geometry::fans::{FanParams, FanSampler, FieldRef};
 use crate::engine::geometry::expmap::RadiusUnit;
+use crate::engine::geometry::fans::{FanParams, FanSampler, FieldRef};
 use crate::engine::geometry::heat::Source;
 use crate::engine::mesh::Surface;
 use crate::engine::multires::SplitMix64;
@@ -283,7 +283,12 @@ pub fn synthesize(
     let tgt_owned = if by_example {
         None
     } else {
-        Some(MeshLevels::build(input.target, params.min_vertices, up, control)?)
+        Some(MeshLevels::build(
+            input.target,
+            params.min_vertices,
+            up,
+            control,
+        )?)
     };
     let tgt_levels = tgt_owned.as_ref().unwrap_or(&src_levels);
     let hierarchy_ms = ms(start);
@@ -297,7 +302,9 @@ pub fn synthesize(
     let flat: Vec<f32> = input.source_colors.iter().flatten().copied().collect();
     let color_std = {
         let s = std_per_dim(&flat, 3);
-        ((s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) / 3.0).sqrt().max(1e-3)
+        ((s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) / 3.0)
+            .sqrt()
+            .max(1e-3)
     };
     let normalized: Vec<f32> = flat.iter().map(|x| x / color_std).collect();
     let src_colors = src_levels.spread(0, 3, normalized);
@@ -354,15 +361,16 @@ pub fn synthesize(
             radius_unit: RadiusUnit::World,
             ..Default::default()
         };
-        let src_fans = FanSampler::new(src_surface, &src_levels.frames[level], &fan_params, control)?
-            .sample(
+        let src_fans =
+            FanSampler::new(src_surface, &src_levels.frames[level], &fan_params, control)?.sample(
                 FieldRef {
                     dim: 3,
                     values: &src_colors[level],
                 },
                 control,
             )?;
-        let tgt_sampler = FanSampler::new(tgt_surface, &tgt_levels.frames[level], &fan_params, control)?;
+        let tgt_sampler =
+            FanSampler::new(tgt_surface, &tgt_levels.frames[level], &fan_params, control)?;
         let stencil = VoteStencil::build(tgt_sampler.charts(), radius);
         let centers: Vec<[f32; 3]> = src_colors[level]
             .chunks_exact(3)

@@ -69,10 +69,7 @@ pub fn upsample(
             let pv = fine_t.positions[v];
             let pc = coarse_t.positions[c];
             let d = [pv[0] - pc[0], pv[1] - pc[1], pv[2] - pc[2]];
-            let (dx, dy) = (
-                dot(d, tf_coarse.tangent[c]),
-                dot(d, tf_coarse.bitangent[c]),
-            );
+            let (dx, dy) = (dot(d, tf_coarse.tangent[c]), dot(d, tf_coarse.bitangent[c]));
             let phi = k as f32 * step;
             let (sin, cos) = phi.sin_cos();
             let (sx, sy) = (cos * dx - sin * dy, sin * dx + cos * dy);
@@ -102,7 +99,11 @@ pub fn upsample(
                     }
                 }
             }
-            let alpha_t = angle_in(tf_fine.tangent[v], tf_coarse.tangent[c], tf_coarse.bitangent[c]);
+            let alpha_t = angle_in(
+                tf_fine.tangent[v],
+                tf_coarse.tangent[c],
+                tf_coarse.bitangent[c],
+            );
             let alpha_s = angle_in(sf_fine.tangent[fine as usize], ts, bs);
             let shift = ((alpha_t - alpha_s) / step).round() as i64;
             let kv = (k as i64 + shift).rem_euclid(spokes as i64) as u16;
