@@ -80,7 +80,7 @@ impl PreviewParams {
                 format!("{} is outside the range 16..=2048", self.size),
             );
         }
-        if !(self.elevation_degrees.abs() <= 89.0) {
+        if !(-89.0..=89.0).contains(&self.elevation_degrees) {
             return bad(
                 "elevation_degrees",
                 format!("{} is outside the range [-89, 89]", self.elevation_degrees),
