@@ -1,5 +1,5 @@
 //! `retex` command line: `serve` runs the HTTP job service, `transfer` runs exactly what a service job runs, `inspect` describes a
-//! model and the problems found in it, `bench` measures the pipeline on the shared assets.
+//! model and the problems found in it, `preview` renders a model's base color from several sides, `bench` measures the pipeline on the shared assets.
 
 mod cli;
 
@@ -52,6 +52,29 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Render the model's base color from several azimuths around +Y into one PNG strip.
+    Preview {
+        /// The model.
+        file: PathBuf,
+        /// Output PNG (views side by side).
+        #[arg(long)]
+        out: PathBuf,
+        /// Number of views (1..=64).
+        #[arg(long, default_value_t = 8)]
+        views: u32,
+        /// Pixels per view, width = height (16..=2048).
+        #[arg(long, default_value_t = 256)]
+        size: u32,
+        /// Camera elevation in degrees ([-89, 89]).
+        #[arg(long, default_value_t = 20.0, allow_hyphen_values = true)]
+        elevation: f32,
+        /// Plain base color, without Lambert + ambient shading.
+        #[arg(long)]
+        no_shading: bool,
+        /// Print nothing on success.
+        #[arg(long)]
+        quiet: bool,
+    },
     /// Run the HTTP job service (see README "Service").
     #[cfg(feature = "service")]
     Serve(Box<cli::serve::ServeArgs>),
@@ -87,6 +110,25 @@ fn main() -> ExitCode {
             quiet,
         }),
         Command::Inspect { file, json } => cli::inspect::run(&file, json),
+        Command::Preview {
+            file,
+            out,
+            views,
+            size,
+            elevation,
+            no_shading,
+            quiet,
+        } => cli::preview::run(&cli::preview::Args {
+            file,
+            out,
+            params: retex::engine::texture::preview::PreviewParams {
+                views,
+                size,
+                elevation_degrees: elevation,
+                shading: !no_shading,
+            },
+            quiet,
+        }),
         Command::Bench { assets, runs } => cli::bench::run(&assets, runs),
         #[cfg(feature = "service")]
         Command::Serve(args) => cli::serve::run(&args),

@@ -2,6 +2,7 @@
 
 pub mod bench;
 pub mod inspect;
+pub mod preview;
 #[cfg(feature = "service")]
 pub mod serve;
 pub mod transfer;

@@ -1,8 +1,9 @@
 //! Texture sampling (sRGB aware, wrap modes, KHR_texture_transform), UV-layout rasterization
-//! (baking), padding, and PNG encoding.
+//! (baking), padding, PNG encoding, and a software turntable preview renderer.
 
 pub mod bake;
 pub mod color;
 pub mod encode;
 pub mod pad;
+pub mod preview;
 pub mod sample;
