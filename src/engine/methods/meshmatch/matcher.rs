@@ -76,6 +76,19 @@ pub struct PatchSpace<'a> {
     pub shape_dim: usize,
     /// Source vertices that may be matched (by-example mode); `None`: all.
     pub source_allowed: Option<&'a [bool]>,
+    /// Candidates closer than a radius to the target vertex are refused (self-matching a mesh).
+    pub exclude: Option<Exclusion<'a>>,
+}
+
+/// Refuses matches between nearby points (the self-match of a source against itself).
+#[derive(Clone, Copy)]
+pub struct Exclusion<'a> {
+    /// Target vertex positions.
+    pub target: &'a [[f32; 3]],
+    /// Source vertex positions.
+    pub source: &'a [[f32; 3]],
+    /// Squared radius.
+    pub radius2: f32,
 }
 
 /// Which rotations to try for a candidate.
@@ -110,6 +123,13 @@ impl PatchSpace<'_> {
         rotations: Rotations,
         bound: f32,
     ) -> Option<(u16, f32)> {
+        if let Some(x) = &self.exclude {
+            let (a, b) = (x.target[t], x.source[s]);
+            let d2 = (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2);
+            if d2 < x.radius2 {
+                return None;
+            }
+        }
         let shape = self.shape_distance(t, s);
         if shape >= bound {
             return None;

@@ -10,6 +10,7 @@
 //! - [`features`]: shape features (§4.1): HKS + up, geodesic affinities to correspondences.
 //! - [`matcher`]: patch dissimilarity (eq. 2), propagation and random search (§4.2 E-step).
 //! - [`vote`]: Gaussian voting (§4.2 M-step, Figure 5) and nearest-neighbour reconstruction.
+//! - [`fidelity`]: coherence, source self-match and completeness of a result.
 //! - [`upsample`]: the field carried to the finer level (§4.2, Figure 6).
 //! - [`synthesize`]: the coarse-to-fine EM on two synthesis meshes.
 //! - [`example`]: the by-example mask (§5.3).
@@ -17,6 +18,7 @@
 
 pub mod example;
 pub mod features;
+pub mod fidelity;
 pub mod levels;
 pub mod matcher;
 pub mod nnf_file;
@@ -126,6 +128,9 @@ pub struct MeshMatchParams {
     pub weld_tolerance: f32,
     /// Write the nearest-neighbour field artifact `nnf.bin`. Default true.
     pub write_nnf: bool,
+    /// Measure coherence, the source self-match and completeness into the report
+    /// ([`fidelity`]); costs about two more E-steps at the finest level. Default false.
+    pub measure_fidelity: bool,
 }
 
 impl Default for MeshMatchParams {
@@ -154,6 +159,7 @@ impl Default for MeshMatchParams {
             snap_tolerance: 0.02,
             weld_tolerance: WeldParams::default().relative_tolerance,
             write_nnf: true,
+            measure_fidelity: false,
         }
     }
 }
@@ -350,6 +356,9 @@ impl MeshMatchError {
                 | MeshMatchError::Resample(ResampleError::Cancelled)
                 | MeshMatchError::Fans(FanError::Cancelled)
                 | MeshMatchError::Charts(ExpMapError::Cancelled)
-        ) || matches!(self, MeshMatchError::Features(features::FeatureError::Cancelled(_)))
+        ) || matches!(
+            self,
+            MeshMatchError::Features(features::FeatureError::Cancelled(_))
+        )
     }
 }

@@ -28,6 +28,7 @@ use crate::engine::mesh::Surface;
 use crate::engine::multires::SplitMix64;
 
 use super::features::{automatic_features, geodesic_affinities, AffinityPair, AffinityReport};
+use super::fidelity::{measure, Fidelity, FidelityInput};
 use super::levels::{erode, MeshLevels};
 use super::matcher::{bfs_order, components, mix, EStep, Nnf, PatchSpace};
 use super::upsample::{upsample, Side};
@@ -106,6 +107,8 @@ pub struct MatchReport {
     pub features: &'static str,
     /// The correspondence transform, when affinities were used.
     pub affinity: Option<AffinityReport>,
+    /// Coherence, source self-match and completeness (with `measure_fidelity`).
+    pub fidelity: Option<Fidelity>,
     /// Milliseconds: hierarchies.
     pub hierarchy_ms: f64,
     /// Milliseconds: shape features.
@@ -345,6 +348,7 @@ pub fn synthesize(
     }
 
     let mut reports = Vec::new();
+    let mut fidelity = None;
     let mut nnf = Nnf::default();
     let mut colors: Vec<[f32; 3]> = Vec::new();
     for level in (0..levels).rev() {
@@ -482,6 +486,7 @@ pub fn synthesize(
                     source_shape: &src_shape,
                     shape_dim: shapes.dim,
                     source_allowed: allowed,
+                    exclude: None,
                 },
                 target_adjacency: tgt_levels.rings(level),
                 source_adjacency: src_levels.rings(level),
@@ -520,6 +525,23 @@ pub fn synthesize(
         if level == 0 && params.nearest_neighbor_final {
             colors = nearest_neighbour_colors(&nnf, &centers, keep);
         }
+        if level == 0 && params.measure_fidelity {
+            fidelity = Some(measure(
+                &FidelityInput {
+                    source: &src_levels,
+                    target: tgt_levels,
+                    source_fans: &src_fans.data,
+                    target_sampler: &tgt_sampler,
+                    colors: &colors,
+                    nnf: &nnf,
+                    allowed,
+                    fixed,
+                    rings: params.rings,
+                    seed,
+                },
+                control,
+            )?);
+        }
         reports.push(LevelReport {
             level,
             target_vertices: nt,
@@ -543,6 +565,7 @@ pub fn synthesize(
             shape_dims: shapes.dim,
             features: shapes.kind,
             affinity: shapes.affinity,
+            fidelity,
             hierarchy_ms,
             features_ms,
             total_ms: ms(start),
