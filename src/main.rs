@@ -86,6 +86,9 @@ enum Command {
         /// Runs per case (the median is reported).
         #[arg(long, default_value_t = 5)]
         runs: usize,
+        /// Which method's table: `project` (default) or `meshmatch`.
+        #[arg(long, default_value = "project")]
+        method: String,
     },
 }
 
@@ -129,7 +132,17 @@ fn main() -> ExitCode {
             },
             quiet,
         }),
-        Command::Bench { assets, runs } => cli::bench::run(&assets, runs),
+        Command::Bench {
+            assets,
+            runs,
+            method,
+        } => match method.as_str() {
+            "project" => cli::bench::run(&assets, runs),
+            "meshmatch" => cli::bench_meshmatch::run(&assets, runs),
+            other => Err(format!(
+                "no benchmark for method {other:?}: expected project or meshmatch"
+            )),
+        },
         #[cfg(feature = "service")]
         Command::Serve(args) => cli::serve::run(&args),
     };
