@@ -112,7 +112,7 @@ fn meshmatch_adds_stripes_where_project_stretches_them() {
     let mm = run_bytes(
         ("source.glb", source.clone()),
         ("target.glb", target.clone()),
-        serde_json::json!({"version": 1, "method": "meshmatch", "seed": 7,
+        serde_json::json!({"version": 1, "method": "meshmatch", "seed": 1,
             "correspondences": corr,
             "output": {"vertex_colors": true},
             "params": {"samples": 16384, "scale": "world", "vertex_color_samples": 60000}}),

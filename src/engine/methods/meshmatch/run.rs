@@ -76,7 +76,8 @@ impl ColorField for SynthesizedField {
                 c[ch] += hit.bary[k] * self.colors[f[k] as usize][ch];
             }
         }
-        Some((c, hit.face))
+        // Interpolation may overshoot by an ulp; glTF wants COLOR_0 in [0, 1].
+        Some((c.map(|x| x.clamp(0.0, 1.0)), hit.face))
     }
 }
 
