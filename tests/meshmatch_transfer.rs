@@ -437,3 +437,52 @@ fn bad_parameters_name_their_field() {
         "example": {"faces": [{"mesh": 0, "primitive": 0, "triangles": [999999]}]}}));
     assert!(e.contains("params.example.faces[0].triangles[0]"), "{e}");
 }
+
+/// Cancelling a running synthesis stops it between passes with a cancellation, not a result.
+#[test]
+fn cancel_stops_a_running_synthesis() {
+    use retex::engine::asset::constraints::Constraints;
+    use retex::engine::pipeline::{transfer, ModelInput, TransferError, TransferInput};
+    let (sn, sb) = bytes(SPOT);
+    let (tn, tb) = bytes(SPOT_REMESHED);
+    let mut s = retex::engine::asset::BlobSet::new();
+    s.insert(sn.clone(), sb);
+    let mut t = retex::engine::asset::BlobSet::new();
+    t.insert(tn.clone(), tb);
+    let c: Constraints = serde_json::from_value(serde_json::json!(
+        {"version": 1, "method": "meshmatch", "params": {"samples": 65536}}))
+    .unwrap();
+    let control = retex::engine::control::Control::new();
+    let remote = control.clone();
+    let canceller = std::thread::spawn(move || {
+        // Let it get into the levels.
+        while !remote.progress().stage.starts_with("meshmatch: level") {
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        remote.cancel();
+        std::time::Instant::now()
+    });
+    let result = transfer(
+        &TransferInput {
+            source: ModelInput {
+                main: &sn,
+                blobs: &s,
+            },
+            target: ModelInput {
+                main: &tn,
+                blobs: &t,
+            },
+            constraints: c,
+            limits: Default::default(),
+        },
+        &control,
+    );
+    let asked = canceller.join().unwrap();
+    let waited = asked.elapsed();
+    assert!(
+        matches!(result, Err(TransferError::Cancelled)),
+        "{:?}",
+        result.err()
+    );
+    eprintln!("stopped {waited:?} after the cancel");
+}

@@ -21,9 +21,10 @@ use crate::engine::spatial::Bvh;
 
 use super::example::painted_vertices;
 use super::nnf_file::NnfFile;
-use super::synthesis::{synthesis_colors, synthesis_mesh};
+use super::synthesis::{barycentric_in, input_color, synthesis_colors, synthesis_mesh};
 use super::synthesize::{synthesize, MatchInput, MatchReport, PointPair};
 use super::{MeshMatchError, MeshMatchParams, ScaleMode};
+use crate::engine::texture::sample::MaterialSampler;
 
 /// The job report of `meshmatch`.
 #[derive(Clone, Debug, Serialize)]
@@ -49,13 +50,25 @@ pub struct MeshMatchReport {
 }
 
 /// The synthesized colours on the target synthesis mesh, as a field over the target surface.
-struct SynthesizedField {
+/// In by-example mode, points inside the painted region read the original base colour instead
+/// (the painted texture is kept at full resolution, not re-baked from the samples).
+struct SynthesizedField<'a> {
     surface: Surface,
     bvh: Bvh,
     colors: Vec<[f32; 3]>,
+    original: Option<Original<'a>>,
 }
 
-impl ColorField for SynthesizedField {
+/// The painted original of by-example mode.
+struct Original<'a> {
+    asset: &'a Asset,
+    input: &'a Surface,
+    input_face: Vec<u32>,
+    painted: Vec<bool>,
+    sampler: MaterialSampler<'a>,
+}
+
+impl ColorField for SynthesizedField<'_> {
     fn color_at(
         &self,
         p: [f32; 3],
@@ -70,6 +83,14 @@ impl ColorField for SynthesizedField {
         }
         let hit = self.bvh.closest_point(p, bound)?;
         let f = self.surface.faces[hit.face as usize];
+        if let Some(o) = &self.original {
+            if f.iter().all(|&v| o.painted[v as usize]) {
+                let face = o.input_face[hit.face as usize] as usize;
+                let b = barycentric_in(o.input.face_positions(face), hit.point);
+                let c = input_color(o.asset, o.input, &o.sampler, face, b);
+                return Some((c.map(|x| x.clamp(0.0, 1.0)), hit.face));
+            }
+        }
         let mut c = [0.0f32, 0.0, 0.0, 1.0];
         for k in 0..3 {
             for ch in 0..3 {
@@ -212,10 +233,18 @@ pub fn run(
         }
         .encode()
     });
+    let painted_count = painted.as_ref().map(|p| p.iter().filter(|x| **x).count());
     let field = SynthesizedField {
         bvh: Bvh::build(&tgt_mesh.surface.positions, &tgt_mesh.surface.faces),
         surface: tgt_mesh.surface,
         colors: out.colors,
+        original: painted.map(|painted| Original {
+            asset: target,
+            input: &tgt_surface,
+            input_face: tgt_mesh.input_face,
+            painted,
+            sampler: MaterialSampler::new(target),
+        }),
     };
     let (edits, output) = write_color_field(
         target,
@@ -230,7 +259,7 @@ pub fn run(
         source_samples: src_mesh.surface.vertex_count(),
         source_scale: scale,
         correspondences: pairs.len(),
-        painted_samples: painted.map(|p| p.iter().filter(|x| **x).count()),
+        painted_samples: painted_count,
         synthesis: out.report,
         output,
         warnings,
