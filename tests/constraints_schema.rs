@@ -47,3 +47,34 @@ fn project_params_match_the_code() {
         }
     }
 }
+
+/// Every default that is a number or a string matches within 1e-6; nested objects compare key by
+/// key.
+fn defaults_agree(props: &Value, code: &Value, path: &str) {
+    assert_eq!(keys(props), keys(code), "{path}");
+    for (k, v) in code.as_object().unwrap() {
+        let d = &props[k]["default"];
+        if v.is_null() {
+            continue;
+        }
+        if v.is_object() {
+            defaults_agree(&props[k]["properties"], v, &format!("{path}.{k}"));
+        } else if let (Some(a), Some(b)) = (d.as_f64(), v.as_f64()) {
+            assert!((a - b).abs() < 1e-6, "{path}.{k}: schema {d} vs code {v}");
+        } else {
+            assert_eq!(d, v, "{path}.{k}");
+        }
+    }
+}
+
+#[test]
+fn meshmatch_params_match_the_code() {
+    let s = schema();
+    let code = serde_json::to_value(retex::engine::methods::meshmatch::MeshMatchParams::default())
+        .unwrap();
+    defaults_agree(
+        &s["$defs"]["meshmatch_params"]["properties"],
+        &code,
+        "params",
+    );
+}

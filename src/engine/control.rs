@@ -64,6 +64,21 @@ impl Control {
         self.lock().planned = stages;
     }
 
+    /// Stages started so far.
+    pub fn stages_started(&self) -> u32 {
+        self.lock().started
+    }
+
+    /// Raises the planned stage count to at least `started + more` (a method that learns its
+    /// size while running, e.g. the number of hierarchy levels).
+    pub fn plan_more(&self, more: u32) {
+        let mut s = self.lock();
+        let want = s.started + more;
+        if s.planned < want {
+            s.planned = want;
+        }
+    }
+
     /// Requests cancellation; running loops stop at their next check.
     pub fn cancel(&self) {
         self.inner.cancel.store(true, Ordering::SeqCst);

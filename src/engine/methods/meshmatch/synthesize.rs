@@ -347,6 +347,9 @@ pub fn synthesize(
         }
     }
 
+    // Stages still to come: per level the level itself, two chart builds, the source fans and one
+    // fan pass per iteration; then the output stages of the pipeline (about 4).
+    control.plan_more((levels * (4 + params.iterations) + 4) as u32);
     let mut reports = Vec::new();
     let mut fidelity = None;
     let mut nnf = Nnf::default();
