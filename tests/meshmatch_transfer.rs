@@ -456,7 +456,7 @@ fn cancel_stops_a_running_synthesis() {
     let remote = control.clone();
     let canceller = std::thread::spawn(move || {
         // Let it get into the levels.
-        while !remote.progress().stage.starts_with("meshmatch: level") {
+        while !remote.progress().stage.starts_with("meshmatch level") {
             std::thread::sleep(std::time::Duration::from_millis(5));
         }
         remote.cancel();

@@ -458,3 +458,60 @@ fn the_engine_runs_only_on_runner_threads() {
     assert_eq!(calls.load(Ordering::SeqCst), 1);
     assert!(!bad.load(Ordering::SeqCst), "engine ran on a tokio thread");
 }
+
+/// A `meshmatch` job end to end: progress shows its levels, the result validates, and the
+/// nearest-neighbour field is downloadable as the `nnf.bin` artifact and decodes.
+#[test]
+fn meshmatch_job_serves_its_result_and_nnf() {
+    let s = TestServer::start(|_| {});
+    let spot = asset("src_spot_keenan/spot_textured_derived.glb");
+    let target = asset("tgt_spot_remeshed_odedstein/spot_low_resolution_derived.glb");
+    let parts: Vec<Part<'static>> = vec![
+        ("source", "spot.glb", spot),
+        ("target", "spot_low.glb", target),
+        (
+            "constraints",
+            "constraints.json",
+            br#"{"version": 1, "method": "meshmatch", "output": {"vertex_colors": true},
+                 "params": {"samples": 8192}}"#
+                .to_vec(),
+        ),
+    ];
+    let r = submit(&s.base, &parts, &[]);
+    assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+    let id = id_of(&r);
+    let mut stages = std::collections::BTreeSet::new();
+    let doc = {
+        let start = std::time::Instant::now();
+        loop {
+            let doc = get(&format!("{}/v1/jobs/{id}", s.base)).json();
+            if let Some(stage) = doc["progress"]["stage"].as_str() {
+                stages.insert(stage.to_string());
+            }
+            if terminal(doc["status"].as_str().unwrap()) {
+                break doc;
+            }
+            assert!(start.elapsed() < Duration::from_secs(120), "{doc}");
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    };
+    assert_eq!(doc["status"], "succeeded", "{doc}");
+    assert!(
+        stages
+            .iter()
+            .any(|s| s.starts_with("meshmatch level") && s.contains("iteration")),
+        "stages seen: {stages:?}"
+    );
+    let r = get(&format!("{}/v1/jobs/{id}/result", s.base));
+    common::assert_validator_clean(&r.body, "service_meshmatch_result.glb");
+    let nnf = get(&format!("{}/v1/jobs/{id}/artifacts/nnf.bin", s.base));
+    assert_eq!(nnf.status, 200);
+    let file = retex::engine::methods::meshmatch::nnf_file::NnfFile::decode(&nnf.body)
+        .expect("nnf.bin decodes");
+    assert_eq!(
+        file.target_positions.len() as u64,
+        doc["report"]["method_report"]["target_samples"]
+            .as_u64()
+            .unwrap()
+    );
+}

@@ -167,7 +167,7 @@ pub fn run(assets: &Path, runs: usize) -> Result<(), String> {
             "~100 s + 160 s preprocessing",
         ),
         (
-            "whole transfer (load → export, 2048² bake)",
+            "whole transfer (load → export, COLOR_0 on a 100k-vertex refined copy)",
             median(exhaustive.whole.clone()),
             "—",
         ),

@@ -32,6 +32,8 @@ pub struct Progress {
 #[derive(Debug, Default)]
 struct StageState {
     name: String,
+    /// Prepended to stage names (`"<prefix>: <name>"`) while set.
+    prefix: String,
     started: u32,
     planned: u32,
     finished: bool,
@@ -62,6 +64,12 @@ impl Control {
     /// Declares how many stages the run will have (for the overall fraction).
     pub fn plan(&self, stages: u32) {
         self.lock().planned = stages;
+    }
+
+    /// Sets a context shown before every following stage name (`""` clears it), e.g. the level
+    /// and iteration of a multi-level method whose helpers name their own stages.
+    pub fn set_prefix(&self, prefix: &str) {
+        self.lock().prefix = prefix.to_string();
     }
 
     /// Stages started so far.
@@ -104,7 +112,11 @@ impl Control {
         self.check()?;
         {
             let mut s = self.lock();
-            s.name = name.to_string();
+            s.name = if s.prefix.is_empty() {
+                name.to_string()
+            } else {
+                format!("{}: {name}", s.prefix)
+            };
             s.started += 1;
             if s.planned < s.started {
                 s.planned = s.started;

@@ -356,7 +356,8 @@ pub fn synthesize(
     let mut colors: Vec<[f32; 3]> = Vec::new();
     for level in (0..levels).rev() {
         let t_level = Instant::now();
-        control.stage(&format!("meshmatch: level {level}"), 0)?;
+        control.set_prefix(&format!("meshmatch level {}/{levels}", levels - level));
+        control.stage("prepare", 0)?;
         let src_surface = src_levels.surface(level);
         let tgt_surface = tgt_levels.surface(level);
         let (ns, nt) = (src_surface.vertex_count(), tgt_surface.vertex_count());
@@ -468,6 +469,11 @@ pub fn synthesize(
         let mut iterations = Vec::new();
         let mut converged = false;
         for it in 0..params.iterations {
+            control.set_prefix(&format!(
+                "meshmatch level {}/{levels} iteration {}",
+                levels - level,
+                it + 1
+            ));
             control.check()?;
             let t_fans = Instant::now();
             let flat: Vec<f32> = colors.iter().flatten().copied().collect();
@@ -556,6 +562,7 @@ pub fn synthesize(
             ms: ms(t_level),
         });
     }
+    control.set_prefix("");
     let colors = colors
         .into_iter()
         .map(|c| c.map(|x| (x * color_std).max(0.0)))
