@@ -144,6 +144,7 @@ fn world_radius(radius: f32, upwind_average: bool) -> ExpMapParams {
         radius,
         radius_unit,
         upwind_average,
+        ..Default::default()
     }
 }
 
@@ -591,4 +592,41 @@ fn bench_geodesic_fans_64k() {
         fans.data.len(),
         proc_field("status", "VmHWM:", 1) / 1024.0
     );
+}
+
+/// A prepared [`FanSampler`] gives exactly the fans of [`geodesic_fans`] for any field, and a
+/// chart cap bounds every chart.
+#[test]
+fn fan_sampler_reuses_charts_and_matches_geodesic_fans() {
+    use retex::engine::geometry::fans::FanSampler;
+    let s = retex::engine::mesh::primitives::icosphere(1.0, 12);
+    let frames = frames_of(&s);
+    let params = FanParams::default();
+    let sampler = FanSampler::new(&s, &frames, &params, &Control::new()).unwrap();
+    for phase in [0.0f32, 1.3] {
+        let field: Vec<f32> = s
+            .positions
+            .iter()
+            .flat_map(|p| [(3.0 * p[0] + phase).sin(), p[1] * p[2], (2.0 * p[2]).cos()])
+            .collect();
+        let f = FieldRef {
+            dim: 3,
+            values: &field,
+        };
+        let a = sampler.sample(f, &Control::new()).unwrap();
+        let b = geodesic_fans(&s, &frames, f, &params, &Control::new()).unwrap();
+        assert_eq!(a, b);
+    }
+    let capped = FanSampler::new(
+        &s,
+        &frames,
+        &FanParams {
+            max_chart_vertices: 10,
+            ..Default::default()
+        },
+        &Control::new(),
+    )
+    .unwrap();
+    let c = capped.charts();
+    assert!((0..s.vertex_count()).all(|v| c.chart(v).0.len() <= 10 && c.chart(v).0[0] == v as u32));
 }

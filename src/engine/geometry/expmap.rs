@@ -208,6 +208,10 @@ pub struct ExpMapParams {
     /// Average the candidates of all placed neighbours when finalizing a vertex (see the module
     /// docs). Default: false (the plain DEM).
     pub upwind_average: bool,
+    /// A chart stops after this many vertices (the closest ones, in placement order) even
+    /// before `radius`: bounds the work on meshes whose density varies by orders of magnitude.
+    /// Default: unbounded. Range: ≥ 1.
+    pub max_vertices: usize,
 }
 
 impl Default for ExpMapParams {
@@ -216,6 +220,7 @@ impl Default for ExpMapParams {
             radius: 3.0,
             radius_unit: RadiusUnit::MeanEdge,
             upwind_average: false,
+            max_vertices: usize::MAX,
         }
     }
 }
@@ -496,6 +501,9 @@ impl ChartBuilder {
             self.done[r] = true;
             self.order_vertex.push(rv as u32);
             self.order_coords.push(self.coords[r]);
+            if self.order_vertex.len() >= params.max_vertices {
+                break;
+            }
             for e in connection.range(rv) {
                 let q = connection.neighbors[e] as usize;
                 let cand = self.candidate(connection, r, e);

@@ -95,6 +95,10 @@ pub struct FanParams {
     pub filter: FanFilter,
     /// Upwind averaging in the exponential map ([`ExpMapParams::upwind_average`]). Default: false.
     pub upwind_average: bool,
+    /// Most vertices per chart ([`ExpMapParams::max_vertices`]): where the mesh is much denser
+    /// than the radius implies, samples beyond the closest vertices fall back to the nearest
+    /// one. Default: unbounded. Range: ≥ 1.
+    pub max_chart_vertices: usize,
 }
 
 impl Default for FanParams {
@@ -108,6 +112,7 @@ impl Default for FanParams {
             cutoff: 3.0,
             filter: FanFilter::LocalLinear,
             upwind_average: false,
+            max_chart_vertices: usize::MAX,
         }
     }
 }
@@ -297,6 +302,7 @@ pub fn geodesic_fans(
         radius,
         radius_unit: RadiusUnit::World,
         upwind_average: params.upwind_average,
+        max_vertices: params.max_chart_vertices,
     };
     let samples: Vec<[f32; 2]> = (0..params.rings)
         .flat_map(|i| (0..params.spokes).map(move |j| shape.sample_position(radius, i, j)))
@@ -444,6 +450,7 @@ impl FanSampler {
                 radius: radius + reach,
                 radius_unit: RadiusUnit::World,
                 upwind_average: params.upwind_average,
+                max_vertices: params.max_chart_vertices,
             },
             control,
         )

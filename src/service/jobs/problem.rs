@@ -200,7 +200,9 @@ fn meshmatch_problem(m: &MeshMatchError, e: &TransferError) -> Problem {
                 e.to_string(),
             )
         },
-        MeshMatchError::Hierarchy(_) | MeshMatchError::Resample(_) => problem(
+        MeshMatchError::Hierarchy(_)
+        | MeshMatchError::Resample(_)
+        | MeshMatchError::Features(_) => problem(
             "unusable-mesh",
             "a mesh cannot be prepared for matching",
             422,

@@ -39,6 +39,9 @@ use features::{AffinityParams, AutomaticFeatureParams};
 pub use example::ExampleMask;
 pub use run::run;
 
+/// Largest synthesis mesh (memory: about 3 KiB per vertex and mesh for fans, charts and levels).
+pub const MAX_SAMPLES: usize = 262_144;
+
 /// Which shape features describe a patch's place on the shape (§4.1).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -73,10 +76,10 @@ pub enum ScaleMode {
 #[serde(default, deny_unknown_fields)]
 pub struct MeshMatchParams {
     /// Vertices of the target synthesis mesh. Default 65,536 (the paper's 64K). Range
-    /// 256..=1,000,000.
+    /// 256..=262,144 (memory grows about 3 KiB per vertex and mesh).
     pub samples: usize,
     /// Vertices of the source synthesis mesh. Default: the target's density (same vertices per
-    /// unit area after scaling). Range 256..=1,000,000.
+    /// unit area after scaling), at most 4 × `samples` and 262,144. Range 256..=262,144.
     pub source_samples: Option<usize>,
     /// Relative size of the meshes. Default `match_area`.
     pub scale: ScaleMode,
@@ -91,7 +94,8 @@ pub struct MeshMatchParams {
     pub rings: usize,
     /// Fan spokes `A`. Default 18 (paper). Range 4..=64.
     pub spokes: usize,
-    /// Outer fan radius in mean edge lengths of the target level. Default 3. Range (0, 20].
+    /// Outer fan radius in mean edge lengths of the target level. Default 3 (the paper's fans
+    /// span about three rings). Range (0, 20].
     pub fan_radius: f32,
     /// Shape features. Default `auto`.
     pub shape_features: ShapeFeatures,
@@ -200,17 +204,17 @@ impl MeshMatchParams {
         }
         let p = self;
         check(
-            (256..=1_000_000).contains(&p.samples),
+            (256..=MAX_SAMPLES).contains(&p.samples),
             "samples",
             p.samples.to_string(),
-            "256..=1000000",
+            "256..=262144",
         )?;
         if let Some(s) = p.source_samples {
             check(
-                (256..=1_000_000).contains(&s),
+                (256..=MAX_SAMPLES).contains(&s),
                 "source_samples",
                 s.to_string(),
-                "256..=1000000",
+                "256..=262144",
             )?;
         }
         check(

@@ -159,7 +159,7 @@ pub fn run(
         params.source_samples.unwrap_or_else(|| {
             let scaled_area = area_s * (scale as f64).powi(2);
             ((params.samples as f64 * scaled_area / area_t).round() as usize)
-                .clamp(256, 4 * params.samples)
+                .clamp(256, (4 * params.samples).min(super::MAX_SAMPLES))
         })
     };
     // Correspondences onto the input surfaces.

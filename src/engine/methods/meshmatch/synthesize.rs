@@ -35,6 +35,12 @@ use super::upsample::{upsample, Side};
 use super::vote::{nearest_neighbour_colors, vote, SourcePatches, VoteStencil};
 use super::{MeshMatchError, MeshMatchParams, ShapeFeatures};
 
+/// Most vertices per fan chart: an even mesh has about 75 within the fan radius plus the filter
+/// reach; the cap (3.4×) only bites where the tessellation is far denser than the mean edge
+/// (CAD-like assets mixing huge panels and tiny details: ToyCar as a target took 110 s without
+/// it, 28 s with it), bounding the cost of charts and fans there.
+pub const MAX_CHART_VERTICES: usize = 256;
+
 /// One correspondence as world points on the synthesis meshes: source point(s), target point(s).
 #[derive(Clone, Debug, PartialEq)]
 pub struct PointPair {
@@ -367,6 +373,7 @@ pub fn synthesize(
             spokes: params.spokes,
             radius,
             radius_unit: RadiusUnit::World,
+            max_chart_vertices: MAX_CHART_VERTICES,
             ..Default::default()
         };
         let src_fans =
@@ -409,6 +416,14 @@ pub fn synthesize(
             let pool: Vec<u32> = (0..ns as u32)
                 .filter(|&s| allowed.is_none_or(|a| a[s as usize]))
                 .collect();
+            if pool.is_empty() {
+                return Err(MeshMatchError::Param {
+                    name: "example",
+                    message: format!(
+                        "the painted region vanishes on the coarsest level ({ns} vertices): paint a larger part or raise min_vertices"
+                    ),
+                });
+            }
             let mut rng = SplitMix64::new(mix(seed, 0xC0A5, level as u64));
             Nnf {
                 source: (0..nt)
