@@ -3,6 +3,8 @@
 
 mod common;
 
+use common::glb;
+
 use common::*;
 use retex::engine::asset::Asset;
 use retex::engine::texture::bake::rasterize_uv_layout;
@@ -13,30 +15,6 @@ use retex::engine::texture::preview::{
 
 const SPOT: &str = "src_spot_keenan/spot_textured_derived.glb";
 const BOX_COLORS: &str = "edge_box_vertex_colors_khronos/glTF-Binary/BoxVertexColors.glb";
-
-/// Builds a GLB from JSON and a binary chunk.
-fn glb(json: &serde_json::Value, bin: &[u8]) -> Vec<u8> {
-    let mut text = serde_json::to_vec(json).unwrap();
-    while text.len() % 4 != 0 {
-        text.push(b' ');
-    }
-    let mut bin = bin.to_vec();
-    while bin.len() % 4 != 0 {
-        bin.push(0);
-    }
-    let total = 12 + 8 + text.len() + 8 + bin.len();
-    let mut out = Vec::new();
-    out.extend_from_slice(b"glTF");
-    out.extend_from_slice(&2u32.to_le_bytes());
-    out.extend_from_slice(&(total as u32).to_le_bytes());
-    out.extend_from_slice(&(text.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"JSON");
-    out.extend_from_slice(&text);
-    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"BIN\0");
-    out.extend_from_slice(&bin);
-    out
-}
 
 /// A unit cube (8 vertices, 12 triangles) with a material of base color factor `factor`.
 fn cube(factor: [f32; 4]) -> Asset {

@@ -4,6 +4,8 @@
 
 mod common;
 
+use common::glb;
+
 use common::*;
 use retex::engine::asset::constraints::{Constraints, OutputFormat};
 use retex::engine::asset::{Asset, BlobSet, IngestLimits};
@@ -242,30 +244,6 @@ fn round_trip_on_spot_with_normal_gating_stays_close() {
         "only {kept} of {covered} texels within the band"
     );
     assert!(psnr >= 24.0, "round trip PSNR {psnr:.2} dB");
-}
-
-/// Builds a GLB from JSON and a binary chunk.
-fn glb(json: &serde_json::Value, bin: &[u8]) -> Vec<u8> {
-    let mut text = serde_json::to_vec(json).unwrap();
-    while text.len() % 4 != 0 {
-        text.push(b' ');
-    }
-    let mut bin = bin.to_vec();
-    while bin.len() % 4 != 0 {
-        bin.push(0);
-    }
-    let total = 12 + 8 + text.len() + 8 + bin.len();
-    let mut out = Vec::new();
-    out.extend_from_slice(b"glTF");
-    out.extend_from_slice(&2u32.to_le_bytes());
-    out.extend_from_slice(&(total as u32).to_le_bytes());
-    out.extend_from_slice(&(text.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"JSON");
-    out.extend_from_slice(&text);
-    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"BIN\0");
-    out.extend_from_slice(&bin);
-    out
 }
 
 /// Splits a GLB into its JSON and BIN chunks.

@@ -68,25 +68,7 @@ pub fn glb_of(
         "bufferViews": views,
         "buffers": [{"byteLength": bin.len()}],
     });
-    let mut text = serde_json::to_vec(&json).unwrap();
-    while text.len() % 4 != 0 {
-        text.push(b' ');
-    }
-    while bin.len() % 4 != 0 {
-        bin.push(0);
-    }
-    let total = 12 + 8 + text.len() + 8 + bin.len();
-    let mut out = Vec::new();
-    out.extend_from_slice(b"glTF");
-    out.extend_from_slice(&2u32.to_le_bytes());
-    out.extend_from_slice(&(total as u32).to_le_bytes());
-    out.extend_from_slice(&(text.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"JSON");
-    out.extend_from_slice(&text);
-    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"BIN\0");
-    out.extend_from_slice(&bin);
-    out
+    crate::common::glb(&json, &bin)
 }
 
 /// Runs a transfer between two models given as bytes.

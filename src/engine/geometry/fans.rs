@@ -287,26 +287,18 @@ pub fn geodesic_fans(
         spokes: params.spokes,
         dim: field.dim,
     };
-    let radius = world_radius(surface, params.radius, params.radius_unit);
-    if nv > 0 && !(radius > 0.0 && radius.is_finite()) {
-        // E.g. a radius in mean edge lengths on a surface without faces.
-        return Err(FanError::InvalidParam {
-            name: "radius (world units)",
-            value: radius as f64,
-            range: "(0, inf)",
-        });
-    }
-    let sigma = params.sigma * radius / params.rings as f32;
-    let reach = params.cutoff * sigma;
+    let Geometry {
+        radius,
+        sigma,
+        reach,
+        samples,
+    } = geometry(surface, params)?;
     let chart_params = ExpMapParams {
         radius,
         radius_unit: RadiusUnit::World,
         upwind_average: params.upwind_average,
         max_vertices: params.max_chart_vertices,
     };
-    let samples: Vec<[f32; 2]> = (0..params.rings)
-        .flat_map(|i| (0..params.spokes).map(move |j| shape.sample_position(radius, i, j)))
-        .collect();
     let area = lumped_areas(surface);
     let connection = Connection::new(surface, frames);
     let stage = control.stage("geodesic fans", nv as u64)?;
@@ -425,24 +417,12 @@ impl FanSampler {
             },
             params,
         )?;
-        let radius = world_radius(surface, params.radius, params.radius_unit);
-        if nv > 0 && !(radius > 0.0 && radius.is_finite()) {
-            return Err(FanError::InvalidParam {
-                name: "radius (world units)",
-                value: radius as f64,
-                range: "(0, inf)",
-            });
-        }
-        let sigma = params.sigma * radius / params.rings as f32;
-        let reach = params.cutoff * sigma;
-        let shape = FanShape {
-            rings: params.rings,
-            spokes: params.spokes,
-            dim: 1,
-        };
-        let samples = (0..params.rings)
-            .flat_map(|i| (0..params.spokes).map(move |j| shape.sample_position(radius, i, j)))
-            .collect();
+        let Geometry {
+            radius,
+            sigma,
+            reach,
+            samples,
+        } = geometry(surface, params)?;
         let charts = super::expmap::exponential_map(
             surface,
             frames,
@@ -547,6 +527,40 @@ impl FanSampler {
             data,
         })
     }
+}
+
+/// World radius, filter σ and reach, and the chart positions of the samples.
+struct Geometry {
+    radius: f32,
+    sigma: f32,
+    reach: f32,
+    samples: Vec<[f32; 2]>,
+}
+
+fn geometry(surface: &Surface, params: &FanParams) -> Result<Geometry, FanError> {
+    let radius = world_radius(surface, params.radius, params.radius_unit);
+    if surface.vertex_count() > 0 && !(radius > 0.0 && radius.is_finite()) {
+        // E.g. a radius in mean edge lengths on a surface without faces.
+        return Err(FanError::InvalidParam {
+            name: "radius (world units)",
+            value: radius as f64,
+            range: "(0, inf)",
+        });
+    }
+    let sigma = params.sigma * radius / params.rings as f32;
+    let shape = FanShape {
+        rings: params.rings,
+        spokes: params.spokes,
+        dim: 1,
+    };
+    Ok(Geometry {
+        radius,
+        sigma,
+        reach: params.cutoff * sigma,
+        samples: (0..params.rings)
+            .flat_map(|i| (0..params.spokes).map(move |j| shape.sample_position(radius, i, j)))
+            .collect(),
+    })
 }
 
 fn validate(

@@ -41,6 +41,29 @@ pub struct Side<'a> {
     pub tolerance: f32,
 }
 
+/// [`resolve`] onto two welded surfaces (with their BVHs), the snap tolerance given as a fraction
+/// of each surface's bounding-box diagonal.
+pub fn resolve_on_surfaces(
+    correspondences: &[Correspondence],
+    source: (&Asset, &Bvh, &crate::engine::mesh::Surface),
+    target: (&Asset, &Bvh, &crate::engine::mesh::Surface),
+    snap_tolerance: f32,
+) -> Result<Vec<ResolvedCorrespondence>, ConstraintsError> {
+    resolve(
+        correspondences,
+        &Side {
+            asset: source.0,
+            bvh: source.1,
+            tolerance: snap_tolerance * source.2.diagonal(),
+        },
+        &Side {
+            asset: target.0,
+            bvh: target.1,
+            tolerance: snap_tolerance * target.2.diagonal(),
+        },
+    )
+}
+
 /// Resolves every correspondence onto the two sides.
 pub fn resolve(
     correspondences: &[Correspondence],

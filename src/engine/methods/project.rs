@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use super::align::{best_similarity, Similarity};
 use super::color_output::{dot, to_f32, write_color_field, ColorField};
-use super::correspondence::{resolve, Side};
+use super::correspondence::resolve_on_surfaces;
 use crate::engine::asset::constraints::{Constraints, ConstraintsError};
 use crate::engine::asset::export::Edits;
 use crate::engine::asset::Asset;
@@ -267,18 +267,11 @@ pub fn run(
 
     lap("surface", &mut timings_ms);
     control.stage("align", 1)?;
-    let resolved = resolve(
+    let resolved = resolve_on_surfaces(
         &constraints.correspondences,
-        &Side {
-            asset: source,
-            bvh: &src_bvh,
-            tolerance: params.snap_tolerance * src_surface.diagonal(),
-        },
-        &Side {
-            asset: target,
-            bvh: &tgt_bvh,
-            tolerance: params.snap_tolerance * tgt_surface.diagonal(),
-        },
+        (source, &src_bvh, &src_surface),
+        (target, &tgt_bvh, &tgt_surface),
+        params.snap_tolerance,
     )?;
     let mut from = Vec::new();
     let mut to = Vec::new();

@@ -16,7 +16,7 @@ use crate::engine::asset::Asset;
 use crate::engine::control::Control;
 use crate::engine::mesh::{build_surface, Surface, WeldParams};
 use crate::engine::methods::color_output::{write_color_field, ColorField, ColorOutputReport};
-use crate::engine::methods::correspondence::{resolve, Side};
+use crate::engine::methods::correspondence::resolve_on_surfaces;
 use crate::engine::spatial::Bvh;
 
 use super::example::painted_vertices;
@@ -169,18 +169,11 @@ pub fn run(
             Bvh::build(&src_surface.positions, &src_surface.faces),
             Bvh::build(&tgt_surface.positions, &tgt_surface.faces),
         );
-        let resolved = resolve(
+        let resolved = resolve_on_surfaces(
             &constraints.correspondences,
-            &Side {
-                asset: src_asset,
-                bvh: &sb,
-                tolerance: params.snap_tolerance * src_surface.diagonal(),
-            },
-            &Side {
-                asset: target,
-                bvh: &tb,
-                tolerance: params.snap_tolerance * tgt_surface.diagonal(),
-            },
+            (src_asset, &sb, &src_surface),
+            (target, &tb, &tgt_surface),
+            params.snap_tolerance,
         )?;
         for r in resolved {
             pairs.push(PointPair {

@@ -15,7 +15,7 @@ use rayon::prelude::*;
 
 use crate::engine::asset::Asset;
 use crate::engine::control::Control;
-use crate::engine::mesh::Surface;
+use crate::engine::mesh::{topology, Surface};
 use crate::engine::multires::{resample, FacePoint, ResampleError, ResampleParams};
 use crate::engine::texture::sample::MaterialSampler;
 
@@ -106,24 +106,7 @@ pub fn synthesis_colors(asset: &Asset, input: &Surface, mesh: &SynthesisMesh) ->
     let sampler = MaterialSampler::new(asset);
     let s = &mesh.surface;
     let nv = s.vertex_count();
-    // Incident faces per vertex (CSR).
-    let mut count = vec![0u32; nv + 1];
-    for f in &s.faces {
-        for &v in f {
-            count[v as usize + 1] += 1;
-        }
-    }
-    for i in 0..nv {
-        count[i + 1] += count[i];
-    }
-    let mut fill = count.clone();
-    let mut incident = vec![0u32; count[nv] as usize];
-    for (fi, f) in s.faces.iter().enumerate() {
-        for &v in f {
-            incident[fill[v as usize] as usize] = fi as u32;
-            fill[v as usize] += 1;
-        }
-    }
+    let topo = topology(s);
     let color_at = |face: usize, p: [f32; 3]| -> [f32; 4] {
         let input_face = mesh.input_face[face] as usize;
         let b = barycentric_in(input.face_positions(input_face), p);
@@ -132,7 +115,7 @@ pub fn synthesis_colors(asset: &Asset, input: &Surface, mesh: &SynthesisMesh) ->
     (0..nv)
         .into_par_iter()
         .map(|v| {
-            let faces = &incident[count[v] as usize..count[v + 1] as usize];
+            let faces = topo.vertex_faces(v);
             let p = s.positions[v];
             let mut sum = [0.0f32; 3];
             let mut weight = 0.0f32;
