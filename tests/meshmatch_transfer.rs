@@ -544,3 +544,101 @@ fn by_example_on_a_textured_asset_keeps_the_painted_texels() {
     assert!(same >= 0.7, "only {same:.3} of the texels kept");
     assert!(same < 0.999, "nothing was synthesized");
 }
+
+/// The third mask form: a glTF image read through the base-colour UVs. The striped capsule gets
+/// UVs `u = x / 4` and, as its base-colour texture, a 64 × 8 mask that is white for `u < 0.5`
+/// (the painted half) and black elsewhere; `{"image": {"index": 0, "channel": "r"}}` selects the
+/// same half as the faces mask, and the unpainted half is filled with stripes.
+#[test]
+fn by_example_with_an_image_mask() {
+    use std::io::Cursor;
+    let (p, t) = capsule(
+        0.5,
+        &(0..=80).map(|i| i as f32 * 0.05).collect::<Vec<_>>(),
+        48,
+        |x| x,
+    );
+    let stripe = |x: f32| if (x * 2.5).fract() < 0.5 { 0.05 } else { 0.9 };
+    let colors: Vec<[f32; 4]> = p
+        .iter()
+        .map(|q| {
+            let g = if q[0] < 2.0 { stripe(q[0]) } else { 0.5 };
+            [g, g, g, 1.0]
+        })
+        .collect();
+    let model = glb_of(&p, &t, Some(&colors));
+    // Split the GLB, append UVs and the mask PNG, reference them.
+    let jlen = u32::from_le_bytes(model[12..16].try_into().unwrap()) as usize;
+    let mut json: serde_json::Value = serde_json::from_slice(&model[20..20 + jlen]).unwrap();
+    let blen = u32::from_le_bytes(model[20 + jlen..24 + jlen].try_into().unwrap()) as usize;
+    let mut bin = model[28 + jlen..28 + jlen + blen].to_vec();
+    let uv_off = bin.len();
+    for q in &p {
+        // Kept inside the outer texel centres: REPEAT wrapping would blend the far column in.
+        let u = (q[0] / 4.0).clamp(1.0 / 128.0, 127.0 / 128.0);
+        bin.extend_from_slice(&u.to_le_bytes());
+        bin.extend_from_slice(&0.5f32.to_le_bytes());
+    }
+    let uv_len = bin.len() - uv_off;
+    let mask = image::RgbaImage::from_fn(64, 8, |x, _| {
+        if (x as f32 + 0.5) / 64.0 < 0.5 {
+            image::Rgba([255, 255, 255, 255])
+        } else {
+            image::Rgba([0, 0, 0, 255])
+        }
+    });
+    let mut png = Vec::new();
+    mask.write_to(&mut Cursor::new(&mut png), image::ImageFormat::Png)
+        .unwrap();
+    let png_off = bin.len();
+    bin.extend_from_slice(&png);
+    let png_len = png.len();
+    while bin.len() % 4 != 0 {
+        bin.push(0);
+    }
+    let views = json["bufferViews"].as_array_mut().unwrap();
+    views.push(serde_json::json!({"buffer": 0, "byteOffset": uv_off, "byteLength": uv_len, "target": 34962}));
+    views.push(serde_json::json!({"buffer": 0, "byteOffset": png_off, "byteLength": png_len}));
+    let (uv_view, png_view) = (views.len() - 2, views.len() - 1);
+    let accessors = json["accessors"].as_array_mut().unwrap();
+    accessors.push(serde_json::json!({"bufferView": uv_view, "componentType": 5126, "count": p.len(), "type": "VEC2"}));
+    let uv_accessor = accessors.len() - 1;
+    json["meshes"][0]["primitives"][0]["attributes"]["TEXCOORD_0"] = uv_accessor.into();
+    json["buffers"][0]["byteLength"] = bin.len().into();
+    json["images"] = serde_json::json!([{"bufferView": png_view, "mimeType": "image/png"}]);
+    json["textures"] = serde_json::json!([{"source": 0}]);
+    json["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] =
+        serde_json::json!({"index": 0});
+    let model = common::glb(&json, &bin);
+    let out = run_bytes(
+        ("masked.glb", model.clone()),
+        ("masked.glb", model),
+        serde_json::json!({"version": 1, "method": "meshmatch",
+            "output": {"vertex_colors": true},
+            "params": {"samples": 12000, "scale": "world", "shape_features": "none",
+                       "example": {"image": {"index": 0, "channel": "r", "threshold": 0.5}}}}),
+    );
+    assert_validator_clean(&out.model, "meshmatch_by_example_image.glb");
+    let painted = out.report.method_report["painted_samples"]
+        .as_u64()
+        .unwrap() as f64;
+    let total = out.report.method_report["target_samples"].as_u64().unwrap() as f64;
+    // The left half (x < 2) plus its cap is half the area: measured 0.501.
+    assert!(
+        (0.45..0.55).contains(&(painted / total)),
+        "painted share {}",
+        painted / total
+    );
+    let right: Vec<f32> = colored_points(&out.model)
+        .iter()
+        .filter(|(q, _)| q[0] > 2.6)
+        .map(|(_, c)| (c[0] + c[1] + c[2]) / 3.0)
+        .collect();
+    let extreme =
+        right.iter().filter(|g| (**g - 0.5).abs() > 0.25).count() as f64 / right.len() as f64;
+    eprintln!(
+        "image mask: painted share {:.3}, {extreme:.3} of the right half striped",
+        painted / total
+    );
+    assert!(extreme >= 0.7, "only {extreme:.3} striped");
+}
