@@ -468,7 +468,10 @@ fn cancel_stops_a_running_synthesis() {
     let remote = control.clone();
     let canceller = std::thread::spawn(move || {
         // Let it get into the levels.
-        while !remote.progress().stage.starts_with("meshmatch level") {
+        let start = std::time::Instant::now();
+        while !remote.progress().stage.starts_with("meshmatch level")
+            && start.elapsed() < std::time::Duration::from_secs(120)
+        {
             std::thread::sleep(std::time::Duration::from_millis(5));
         }
         remote.cancel();
