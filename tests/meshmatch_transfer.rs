@@ -113,7 +113,7 @@ fn spot_correspondences() -> serde_json::Value {
 /// Self transfer: Spot onto its isotropic remesh with 8 correspondences. The ground truth is
 /// `project` on the same pair (the remesh lies within 0.66% mean / 3.9% max of the original).
 /// MeshMatch synthesizes rather than copies, so the comparison is of low-passed luminance:
-/// measured correlation 0.70 with the default shape weight (threshold 0.6) and 0.86 with shape
+/// measured correlation 0.66 with the default shape weight (threshold 0.6) and 0.85 with shape
 /// weight 4 (threshold 0.78), with 16K samples. Patch fidelity is reported and bounded: coherence
 /// within 3× the source's own self-match distance, completeness over 50%.
 #[test]

@@ -109,7 +109,7 @@ pub struct MeshMatchParams {
     /// Weight of the shape block relative to colour on the coarsest level (1 = equal after
     /// normalizing for dimension and variance, the paper's §5.2 setting). Default 2: measured on
     /// the test suite, equal weights let colour win too often (Spot onto its remesh with 8
-    /// correspondences: low-passed correlation with the ground truth 0.56 at 1, 0.70 at 2, 0.86
+    /// correspondences: low-passed correlation with the ground truth 0.56 at 1, 0.66 at 2, 0.85
     /// at 4), while the stripe test keeps the source's stripe period up to 2 (×1.03–1.18) and
     /// starts stretching at 2.5 (×1.37). Range [0, 100].
     pub shape_weight: f32,
