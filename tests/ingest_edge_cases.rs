@@ -630,39 +630,6 @@ fn load_tri(blobs: &BlobSet) -> Result<Asset, IngestError> {
     load("tri.gltf", blobs, &IngestLimits::default())
 }
 
-/// A PNG whose IHDR claims `w` x `h` RGBA8 but whose data is a few bytes: a decompression bomb.
-fn bomb_png(w: u32, h: u32) -> Vec<u8> {
-    fn crc32(data: &[u8]) -> u32 {
-        let mut crc = 0xFFFF_FFFFu32;
-        for &b in data {
-            crc ^= b as u32;
-            for _ in 0..8 {
-                crc = if crc & 1 != 0 {
-                    (crc >> 1) ^ 0xEDB8_8320
-                } else {
-                    crc >> 1
-                };
-            }
-        }
-        !crc
-    }
-    let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
-    let mut ihdr = b"IHDR".to_vec();
-    ihdr.extend_from_slice(&w.to_be_bytes());
-    ihdr.extend_from_slice(&h.to_be_bytes());
-    ihdr.extend_from_slice(&[8, 6, 0, 0, 0]);
-    for chunk in [
-        ihdr,
-        b"IDAT\x78\x9c\x63\x00\x00\x00\x01\x00\x01".to_vec(),
-        b"IEND".to_vec(),
-    ] {
-        out.extend_from_slice(&(chunk.len() as u32 - 4).to_be_bytes());
-        out.extend_from_slice(&chunk);
-        out.extend_from_slice(&crc32(&chunk).to_be_bytes());
-    }
-    out
-}
-
 #[test]
 fn the_plain_triangle_loads() {
     let a = load_tri(&triangle(|_| {}, TRI, [0, 1, 2])).unwrap();
@@ -683,7 +650,7 @@ fn decompression_bomb_png_is_refused_from_its_header() {
         TRI,
         [0, 1, 2],
     );
-    let png = bomb_png(100_000, 100_000);
+    let png = common::bomb_png(100_000, 100_000);
     assert!(png.len() < 100);
     blobs.insert("bomb.png", png);
     let e = load_tri(&blobs).unwrap_err();
@@ -700,7 +667,7 @@ fn decompression_bomb_png_is_refused_from_its_header() {
         "{e}"
     );
     // Under the side limit but over the pixel limit.
-    blobs.insert("bomb.png", bomb_png(16000, 16000));
+    blobs.insert("bomb.png", common::bomb_png(16000, 16000));
     let limits = IngestLimits {
         max_image_pixels: 1 << 20,
         ..IngestLimits::default()

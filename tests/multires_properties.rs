@@ -35,71 +35,11 @@ fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
 fn norm(a: [f32; 3]) -> f32 {
     dot(a, a).sqrt()
 }
-fn normalize(a: [f32; 3]) -> [f32; 3] {
-    let l = norm(a);
-    a.map(|c| c / l)
-}
 
 /// Unit icosphere: the icosahedron with every face split in four `subdivisions` times, vertices
 /// pushed to the sphere. `10·4^k + 2` vertices, outward counter-clockwise faces.
 fn icosphere(subdivisions: u32) -> Surface {
-    let t = (1.0 + 5f32.sqrt()) / 2.0;
-    let mut p: Vec<[f32; 3]> = [
-        [-1.0, t, 0.0],
-        [1.0, t, 0.0],
-        [-1.0, -t, 0.0],
-        [1.0, -t, 0.0],
-        [0.0, -1.0, t],
-        [0.0, 1.0, t],
-        [0.0, -1.0, -t],
-        [0.0, 1.0, -t],
-        [t, 0.0, -1.0],
-        [t, 0.0, 1.0],
-        [-t, 0.0, -1.0],
-        [-t, 0.0, 1.0],
-    ]
-    .iter()
-    .map(|&v| normalize(v))
-    .collect();
-    let mut f: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..subdivisions {
-        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
-        let mut m = |a: u32, b: u32, p: &mut Vec<[f32; 3]>| {
-            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                let (x, y) = (p[a as usize], p[b as usize]);
-                p.push(normalize([x[0] + y[0], x[1] + y[1], x[2] + y[2]]));
-                p.len() as u32 - 1
-            })
-        };
-        let mut next = Vec::with_capacity(f.len() * 4);
-        for &[a, b, c] in &f {
-            let (ab, bc, ca) = (m(a, b, &mut p), m(b, c, &mut p), m(c, a, &mut p));
-            next.extend_from_slice(&[[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]]);
-        }
-        f = next;
-    }
-    Surface::from_triangles(p, f)
+    retex::engine::mesh::primitives::subdivided_icosphere(1.0, subdivisions)
 }
 
 /// A torus (major radius 1, minor 0.35) on an `nu × nv` grid: χ = 0.

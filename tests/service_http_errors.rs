@@ -38,39 +38,6 @@ fn triangle_parts(patch: impl FnOnce(&mut serde_json::Value)) -> Vec<Part<'stati
     ]
 }
 
-/// A PNG whose header claims `w` x `h` pixels with almost no data.
-fn bomb_png(w: u32, h: u32) -> Vec<u8> {
-    fn crc32(data: &[u8]) -> u32 {
-        let mut crc = 0xFFFF_FFFFu32;
-        for &b in data {
-            crc ^= b as u32;
-            for _ in 0..8 {
-                crc = if crc & 1 != 0 {
-                    (crc >> 1) ^ 0xEDB8_8320
-                } else {
-                    crc >> 1
-                };
-            }
-        }
-        !crc
-    }
-    let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
-    let mut ihdr = b"IHDR".to_vec();
-    ihdr.extend_from_slice(&w.to_be_bytes());
-    ihdr.extend_from_slice(&h.to_be_bytes());
-    ihdr.extend_from_slice(&[8, 6, 0, 0, 0]);
-    for chunk in [
-        ihdr,
-        b"IDAT\x78\x9c\x63\x00\x00\x00\x01\x00\x01".to_vec(),
-        b"IEND".to_vec(),
-    ] {
-        out.extend_from_slice(&(chunk.len() as u32 - 4).to_be_bytes());
-        out.extend_from_slice(&chunk);
-        out.extend_from_slice(&crc32(&chunk).to_be_bytes());
-    }
-    out
-}
-
 #[test]
 fn malformed_uploads_get_4xx_problems_never_5xx() {
     let s = TestServer::start(|c| {
@@ -97,7 +64,7 @@ fn malformed_uploads_get_4xx_problems_never_5xx() {
                 serde_json::json!([{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]);
             j["meshes"][0]["primitives"][0]["material"] = 0.into();
         });
-        p.push(("target", "bomb.png", bomb_png(100_000, 100_000)));
+        p.push(("target", "bomb.png", common::bomb_png(100_000, 100_000)));
         p
     };
     // (what, parts, status, field prefix, limit name)

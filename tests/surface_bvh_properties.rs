@@ -1,8 +1,6 @@
 //! Properties of the Surface (welding, back-links, topology) and of the BVH queries, checked
 //! against brute force and analytic shapes.
 
-use std::collections::HashMap;
-
 use retex::engine::asset::{Asset, MeshInstance, Primitive, TriangleMode};
 use retex::engine::mesh::{build_surface, topology, FaceOrigin, MeshError, Surface, WeldParams};
 use retex::engine::spatial::{point_triangle_distance_squared, ray_triangle, Bvh, ClosestHit};
@@ -60,75 +58,8 @@ fn norm(a: [f32; 3]) -> f32 {
 
 /// An icosphere of radius 1: an icosahedron subdivided `level` times, counter-clockwise outward.
 fn icosphere(level: u32) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
-    let t = (1.0 + 5.0f64.sqrt()) / 2.0;
-    let mut pos: Vec<[f64; 3]> = vec![
-        [-1.0, t, 0.0],
-        [1.0, t, 0.0],
-        [-1.0, -t, 0.0],
-        [1.0, -t, 0.0],
-        [0.0, -1.0, t],
-        [0.0, 1.0, t],
-        [0.0, -1.0, -t],
-        [0.0, 1.0, -t],
-        [t, 0.0, -1.0],
-        [t, 0.0, 1.0],
-        [-t, 0.0, -1.0],
-        [-t, 0.0, 1.0],
-    ];
-    let normalize = |p: [f64; 3]| {
-        let l = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-        p.map(|c| c / l)
-    };
-    for p in pos.iter_mut() {
-        *p = normalize(*p);
-    }
-    let mut faces: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..level {
-        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
-        let mut next = Vec::with_capacity(faces.len() * 4);
-        for f in &faces {
-            let mut m = [0u32; 3];
-            for i in 0..3 {
-                let (a, b) = (f[i], f[(i + 1) % 3]);
-                let key = (a.min(b), a.max(b));
-                m[i] = *mid.entry(key).or_insert_with(|| {
-                    let (pa, pb) = (pos[a as usize], pos[b as usize]);
-                    pos.push(normalize([pa[0] + pb[0], pa[1] + pb[1], pa[2] + pb[2]]));
-                    (pos.len() - 1) as u32
-                });
-            }
-            next.push([f[0], m[0], m[2]]);
-            next.push([f[1], m[1], m[0]]);
-            next.push([f[2], m[2], m[1]]);
-            next.push([m[0], m[1], m[2]]);
-        }
-        faces = next;
-    }
-    (
-        pos.into_iter().map(|p| p.map(|c| c as f32)).collect(),
-        faces,
-    )
+    let s = retex::engine::mesh::primitives::subdivided_icosphere(1.0, level);
+    (s.positions, s.faces)
 }
 
 /// A random triangle soup inside [-1, 1]³, with triangles of very different sizes and one

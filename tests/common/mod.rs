@@ -117,3 +117,36 @@ pub fn glb(json: &serde_json::Value, bin: &[u8]) -> Vec<u8> {
     out.extend_from_slice(&bin);
     out
 }
+
+/// A PNG whose IHDR claims `w` x `h` RGBA8 but whose data is a few bytes: a decompression bomb.
+pub fn bomb_png(w: u32, h: u32) -> Vec<u8> {
+    fn crc32(data: &[u8]) -> u32 {
+        let mut crc = 0xFFFF_FFFFu32;
+        for &b in data {
+            crc ^= b as u32;
+            for _ in 0..8 {
+                crc = if crc & 1 != 0 {
+                    (crc >> 1) ^ 0xEDB8_8320
+                } else {
+                    crc >> 1
+                };
+            }
+        }
+        !crc
+    }
+    let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut ihdr = b"IHDR".to_vec();
+    ihdr.extend_from_slice(&w.to_be_bytes());
+    ihdr.extend_from_slice(&h.to_be_bytes());
+    ihdr.extend_from_slice(&[8, 6, 0, 0, 0]);
+    for chunk in [
+        ihdr,
+        b"IDAT\x78\x9c\x63\x00\x00\x00\x01\x00\x01".to_vec(),
+        b"IEND".to_vec(),
+    ] {
+        out.extend_from_slice(&(chunk.len() as u32 - 4).to_be_bytes());
+        out.extend_from_slice(&chunk);
+        out.extend_from_slice(&crc32(&chunk).to_be_bytes());
+    }
+    out
+}

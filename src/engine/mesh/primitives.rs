@@ -61,6 +61,39 @@ fn normalize(p: [f64; 3]) -> [f64; 3] {
     [p[0] / l, p[1] / l, p[2] / l]
 }
 
+/// An icosphere by recursive midpoint subdivision: the icosahedron with every face split in four
+/// `subdivisions` times, new points pushed onto the sphere of `radius` (in f64, then stored as
+/// f32). `10 · 4^k + 2` vertices, outward counter-clockwise faces; each face `[a, b, c]` becomes
+/// `[a, ab, ca], [b, bc, ab], [c, ca, bc], [ab, bc, ca]`.
+pub fn subdivided_icosphere(radius: f64, subdivisions: u32) -> Surface {
+    let (mut pos, mut faces) = icosahedron();
+    for _ in 0..subdivisions {
+        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut next = Vec::with_capacity(faces.len() * 4);
+        for f in &faces {
+            let mut m = [0u32; 3];
+            for i in 0..3 {
+                let (a, b) = (f[i], f[(i + 1) % 3]);
+                m[i] = *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                    let (pa, pb) = (pos[a as usize], pos[b as usize]);
+                    pos.push(normalize([pa[0] + pb[0], pa[1] + pb[1], pa[2] + pb[2]]));
+                    (pos.len() - 1) as u32
+                });
+            }
+            next.push([f[0], m[0], m[2]]);
+            next.push([f[1], m[1], m[0]]);
+            next.push([f[2], m[2], m[1]]);
+            next.push([m[0], m[1], m[2]]);
+        }
+        faces = next;
+    }
+    let positions = pos
+        .into_iter()
+        .map(|p| p.map(|c| (c * radius) as f32))
+        .collect();
+    Surface::from_triangles(positions, faces)
+}
+
 /// A Class I geodesic sphere: every icosahedron face split into `frequency²` triangles, points
 /// projected onto the sphere of `radius` centred at the origin. `10 f² + 2` vertices, `20 f²`
 /// faces, closed and manifold. `frequency` is clamped to at least 1.
