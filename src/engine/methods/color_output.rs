@@ -21,7 +21,9 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::engine::asset::constraints::Constraints;
-use crate::engine::asset::export::{Edits, MaterialTexture, RefinedPrimitive, VertexColors};
+use crate::engine::asset::edits::{
+    AttributeData, Edit, EncodedImage, PrimitiveGeometry, TextureSlot, TextureWrap,
+};
 use crate::engine::asset::Asset;
 use crate::engine::control::{Cancelled, Control};
 use crate::engine::multires::{edge_length_for_vertex_count, refine, RefineParams};
@@ -85,8 +87,6 @@ pub struct ColorOutputReport {
     pub vertex_colors: Vec<VertexColorReport>,
     /// Things the user should know (lowercase sentences).
     pub warnings: Vec<String>,
-    /// Wall-clock milliseconds per stage ("bake", "pad", "vertex_colors").
-    pub timings_ms: Vec<(String, f64)>,
 }
 
 pub(super) fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
@@ -269,7 +269,7 @@ fn finish_textures(
     size: u32,
     padding: u32,
     control: &Control,
-) -> Result<Vec<(MaterialTexture, TextureReport)>, Cancelled> {
+) -> Result<Vec<(Edit, TextureReport)>, Cancelled> {
     let pad_stage = control.stage("pad", baked.len() as u64)?;
     baked
         .into_par_iter()
@@ -288,12 +288,13 @@ fn finish_textures(
             let png = encode_png_srgb(&b.pixels, size, size);
             pad_stage.tick(1)?;
             Ok((
-                MaterialTexture {
+                Edit::SetTexture {
                     material: b.material,
-                    primitives: prims,
-                    png,
+                    slot: TextureSlot::BaseColor,
+                    image: EncodedImage::srgb8_png(name, png),
                     tex_coord: b.report.tex_coord,
-                    name,
+                    wrap: TextureWrap::Repeat,
+                    primitives: prims,
                 },
                 b.report,
             ))
@@ -308,38 +309,34 @@ pub fn write_color_field(
     vertex_color_samples: usize,
     field: &dyn ColorField,
     control: &Control,
-) -> Result<(Edits, ColorOutputReport), Cancelled> {
+) -> Result<(Vec<Edit>, ColorOutputReport), Cancelled> {
     let mut report = ColorOutputReport::default();
-    let mut clock = std::time::Instant::now();
-    let mut lap = |name: &str, timings: &mut Vec<(String, f64)>| {
-        let now = std::time::Instant::now();
-        timings.push((name.to_string(), (now - clock).as_secs_f64() * 1e3));
-        clock = now;
-    };
     let layout = layout(target, constraints, &mut report.warnings);
     let size = constraints.output.texture_size;
+    let span = control.span(0.0, 0.75);
     let baked = bake_groups(target, &layout, size, field, control)?;
-    lap("bake", &mut report.timings_ms);
+    drop(span);
 
+    let span = control.span(0.75, 0.9);
     let finished = finish_textures(baked, size, constraints.output.padding, control)?;
-    let mut edits = Edits::default();
+    let mut edits = Vec::new();
     for (texture, tr) in finished {
-        edits.textures.push(texture);
+        edits.push(texture);
         report.textures.push(tr);
     }
-    lap("pad", &mut report.timings_ms);
+    drop(span);
 
-    write_vertex_colors(
+    let _span = control.span(0.9, 1.0);
+    let vertex_edits = write_vertex_colors(
         target,
         constraints,
         &layout,
         vertex_color_samples,
         field,
         control,
-        &mut edits,
         &mut report,
     )?;
-    lap("vertex_colors", &mut report.timings_ms);
+    edits.extend(vertex_edits.into_edits());
     Ok((edits, report))
 }
 
@@ -352,10 +349,14 @@ fn write_vertex_colors(
     vertex_color_samples: usize,
     field: &dyn ColorField,
     control: &Control,
-    edits: &mut Edits,
     report: &mut ColorOutputReport,
-) -> Result<(), Cancelled> {
+) -> Result<VertexEdits, Cancelled> {
+    let mut edits = VertexEdits::default();
     let vertex_path = &layout.vertex_path;
+    if vertex_path.is_empty() {
+        return Ok(edits);
+    }
+    let stage = control.stage("vertex_colors", vertex_path.len() as u64)?;
     let area: f64 = vertex_path
         .iter()
         .map(|&(p, ii)| primitive_world_area(target, p, ii))
@@ -447,17 +448,21 @@ fn write_vertex_colors(
             unmatched,
         });
         if refine_it {
-            edits.refined.push(RefinedPrimitive {
+            edits.refined.push(Edit::ReplacePrimitive {
                 primitive: p,
-                positions,
-                normals,
-                colors,
-                triangles,
+                geometry: PrimitiveGeometry {
+                    positions,
+                    normals,
+                    colors: Some(colors),
+                    triangles,
+                    ..Default::default()
+                },
             });
         } else {
-            edits.vertex_colors.push(VertexColors {
+            edits.vertex_colors.push(Edit::SetAttribute {
                 primitive: p,
-                colors,
+                name: "COLOR_0".into(),
+                data: AttributeData::Vec4(colors),
             });
         }
         if let Some(m) = prim.material {
@@ -465,7 +470,7 @@ fn write_vertex_colors(
                 edits.untextured_materials.push(m);
             }
         }
-        control.check()?;
+        stage.tick(1)?;
     }
     edits.untextured_materials.sort_unstable();
     if !vertex_path.is_empty() && !constraints.output.vertex_colors {
@@ -474,7 +479,29 @@ fn write_vertex_colors(
             vertex_path.len()
         ));
     }
-    Ok(())
+    Ok(edits)
+}
+
+/// The COLOR_0 path's edits, kept by kind so they are exported in a fixed order: materials
+/// that lose their base-colour texture, COLOR_0 on original vertices, refined copies.
+#[derive(Default)]
+struct VertexEdits {
+    untextured_materials: Vec<usize>,
+    vertex_colors: Vec<Edit>,
+    refined: Vec<Edit>,
+}
+
+impl VertexEdits {
+    fn into_edits(self) -> impl Iterator<Item = Edit> {
+        self.untextured_materials
+            .into_iter()
+            .map(|material| Edit::ClearTexture {
+                material,
+                slot: TextureSlot::BaseColor,
+            })
+            .chain(self.vertex_colors)
+            .chain(self.refined)
+    }
 }
 
 /// Cube root of |det| of the upper 3x3: the mean linear scale of an instance transform.

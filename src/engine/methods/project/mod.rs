@@ -18,11 +18,12 @@ use serde::{Deserialize, Serialize};
 use super::align::{best_similarity, Similarity};
 use super::color_output::{dot, to_f32, write_color_field, ColorField};
 use super::correspondence::resolve_on_surfaces;
-use crate::engine::asset::constraints::{Constraints, ConstraintsError};
-use crate::engine::asset::export::Edits;
+use super::{InputSpec, Method, MethodError, MethodInput, MethodOutput};
+use crate::engine::asset::constraints::{Constraints, ConstraintsError, MethodId};
+use crate::engine::asset::edits::Edit;
 use crate::engine::asset::Asset;
-use crate::engine::control::{Cancelled, Control};
-use crate::engine::mesh::{build_surface, MeshError, Surface, WeldParams};
+use crate::engine::control::Control;
+use crate::engine::mesh::{build_surface, Surface, WeldParams};
 use crate::engine::spatial::triangle::point_triangle_distance_squared;
 use crate::engine::spatial::Bvh;
 use crate::engine::texture::sample::MaterialSampler;
@@ -108,25 +109,6 @@ impl ProjectParams {
     }
 }
 
-/// Failures of the method.
-#[derive(Debug, thiserror::Error)]
-pub enum ProjectError {
-    /// A surface could not be built.
-    #[error("{side} surface: {source}")]
-    Mesh {
-        /// "source" or "target".
-        side: &'static str,
-        /// The cause.
-        source: MeshError,
-    },
-    /// A correspondence or parameter is invalid.
-    #[error(transparent)]
-    Constraints(#[from] ConstraintsError),
-    /// Cancelled through the Control.
-    #[error("cancelled")]
-    Cancelled(#[from] Cancelled),
-}
-
 /// The alignment that was applied.
 #[derive(Clone, Debug, Serialize)]
 pub struct AlignmentReport {
@@ -174,8 +156,6 @@ pub struct ProjectReport {
     pub vertex_colors: Vec<VertexColorReport>,
     /// Things the user should know (lowercase sentences).
     pub warnings: Vec<String>,
-    /// Wall-clock milliseconds per stage (surface, align, bake, pad, vertex_colors).
-    pub timings_ms: Vec<(String, f64)>,
 }
 
 /// The source, placed in the target's frame, ready to answer "what color is closest to p".
@@ -234,30 +214,63 @@ impl ColorField for SourceField<'_> {
     }
 }
 
+/// The `project` method (registry entry).
+pub struct Project;
+
+impl Method for Project {
+    fn id(&self) -> MethodId {
+        MethodId::Project
+    }
+
+    fn inputs(&self) -> InputSpec {
+        InputSpec::SOURCE_AND_TARGET
+    }
+
+    fn params_schema(&self) -> serde_json::Value {
+        super::schema::params_def("project_params")
+    }
+
+    fn check(&self, constraints: &Constraints) -> Result<(), ConstraintsError> {
+        ProjectParams::from_constraints(constraints).map(drop)
+    }
+
+    fn run(&self, input: &MethodInput<'_>, control: &Control) -> Result<MethodOutput, MethodError> {
+        let params = ProjectParams::from_constraints(input.constraints)?;
+        let (edits, report) = run(
+            input.source()?,
+            input.target,
+            input.constraints,
+            &params,
+            control,
+        )?;
+        let mut out = MethodOutput::target(edits, &report);
+        out.warnings = report.warnings;
+        Ok(out)
+    }
+}
+
 /// Runs `project`: returns the edits to write into the target and the report.
+///
+/// # Errors
+/// [`MethodError::Mesh`] when a surface cannot be built, [`MethodError::Constraints`] for a
+/// correspondence that does not resolve, [`MethodError::Cancelled`].
 pub fn run(
     source: &Asset,
     target: &Asset,
     constraints: &Constraints,
     params: &ProjectParams,
     control: &Control,
-) -> Result<(Edits, ProjectReport), ProjectError> {
+) -> Result<(Vec<Edit>, ProjectReport), MethodError> {
     let weld = WeldParams {
         relative_tolerance: params.weld_tolerance,
     };
-    let mut timings_ms: Vec<(String, f64)> = Vec::new();
-    let mut clock = std::time::Instant::now();
-    let mut lap = |name: &str, timings: &mut Vec<(String, f64)>| {
-        let now = std::time::Instant::now();
-        timings.push((name.to_string(), (now - clock).as_secs_f64() * 1e3));
-        clock = now;
-    };
+    let surfaces = control.span(0.0, 0.1);
     control.stage("surface", 2)?;
-    let mut src_surface = build_surface(source, &weld).map_err(|source| ProjectError::Mesh {
+    let mut src_surface = build_surface(source, &weld).map_err(|source| MethodError::Mesh {
         side: "source",
         source,
     })?;
-    let tgt_surface = build_surface(target, &weld).map_err(|source| ProjectError::Mesh {
+    let tgt_surface = build_surface(target, &weld).map_err(|source| MethodError::Mesh {
         side: "target",
         source,
     })?;
@@ -265,7 +278,8 @@ pub fn run(
     let tgt_bvh = Bvh::build(&tgt_surface.positions, &tgt_surface.faces);
     let mut warnings = Vec::new();
 
-    lap("surface", &mut timings_ms);
+    drop(surfaces);
+    let align = control.span(0.1, 0.15);
     control.stage("align", 1)?;
     let resolved = resolve_on_surfaces(
         &constraints.correspondences,
@@ -317,7 +331,8 @@ pub fn run(
     };
     let src_report = SurfaceReport::of(&field.surface);
 
-    lap("align", &mut timings_ms);
+    drop(align);
+    let _output = control.span(0.15, 1.0);
     let (edits, out) = write_color_field(
         target,
         constraints,
@@ -326,7 +341,6 @@ pub fn run(
         control,
     )?;
     warnings.extend(out.warnings);
-    timings_ms.extend(out.timings_ms);
     let report = ProjectReport {
         source_surface: src_report,
         target_surface: SurfaceReport::of(&tgt_surface),
@@ -334,7 +348,6 @@ pub fn run(
         textures: out.textures,
         vertex_colors: out.vertex_colors,
         warnings,
-        timings_ms,
     };
     Ok((edits, report))
 }
