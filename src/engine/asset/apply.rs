@@ -213,6 +213,19 @@ fn set_texture(
             mat["emissiveTexture"] = info;
             mat["emissiveFactor"] = json!(factor);
         }
+        TextureSlot::Extras(key) => {
+            let obj = mat.as_object_mut().expect("material object");
+            let extras = obj.entry("extras").or_insert(json!({}));
+            if !extras.is_object() {
+                *extras = json!({});
+            }
+            let entry = &mut extras[key];
+            if !entry.is_object() {
+                *entry = json!({});
+            }
+            entry["index"] = json!(texture);
+            entry["texCoord"] = json!(tex_coord);
+        }
     }
     Ok(())
 }
@@ -229,6 +242,11 @@ fn clear_texture(b: &mut Builder, material: usize, slot: TextureSlot) -> Result<
                 pbr.insert("baseColorFactor".into(), json!([1.0, 1.0, 1.0, 1.0]));
             }
             drop_spec_gloss(mat);
+        }
+        TextureSlot::Extras(key) => {
+            if let Some(extras) = mat.get_mut("extras").and_then(Value::as_object_mut) {
+                extras.remove(key);
+            }
         }
         other => {
             mat.as_object_mut()

@@ -125,6 +125,10 @@ pub enum TextureSlot {
         /// Linear RGB factor.
         factor: [f32; 3],
     },
+    /// A texture referenced from `material.extras[key]` (e.g. `retex_displacement`): export
+    /// sets `index` and `texCoord` in that object and keeps its other members (write them first
+    /// with [`Edit::SetMaterialExtra`]).
+    Extras(&'static str),
 }
 
 impl TextureSlot {
@@ -135,6 +139,7 @@ impl TextureSlot {
             TextureSlot::Normal { .. } => "normalTexture",
             TextureSlot::Occlusion { .. } => "occlusionTexture",
             TextureSlot::Emissive { .. } => "emissiveTexture",
+            TextureSlot::Extras(key) => key,
         }
     }
 }
