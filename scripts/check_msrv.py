@@ -3,8 +3,8 @@
 
 Usage: python3 scripts/check_msrv.py [--target TRIPLE ...]
 
-Reads `cargo metadata --format-version 1 --locked --filter-platform TRIPLE` for each target
-(default: the Linux, macOS and Windows x86_64 / aarch64 triples) and takes the largest
+Reads `cargo metadata --format-version 1 --filter-platform TRIPLE` (versions from Cargo.lock)
+for each target (default: the Linux, macOS and Windows x86_64 / aarch64 triples), takes the largest
 `rust_version` over the packages of the resolve graph, i.e. the ones that can be built for that
 target. Packages that only enter the lock file through a `cfg(...)` that no build sets (faer's
 `spindle` pulls in `loom` -> `generator` -> `windows-*` under `cfg(loom)`) are not in that graph
@@ -39,11 +39,12 @@ def show(version):
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 
 
-def metadata(target, locked):
+def metadata(target):
+    # Not --locked: cargo takes the versions from Cargo.lock when there is one and only adds
+    # what the manifest gained since (as the build itself will); without one it resolves the
+    # newest compatible versions, the ones a first build would use.
     cmd = ["cargo", "metadata", "--format-version", "1", "--filter-platform", target,
            "--manifest-path", os.path.join(ROOT, "Cargo.toml")]
-    if locked:
-        cmd.append("--locked")
     out = subprocess.run(cmd, check=True, stdout=subprocess.PIPE, text=True).stdout
     return json.loads(out)
 
@@ -60,17 +61,14 @@ def main(argv):
             return 2
     targets = targets or DEFAULT_TARGETS
 
-    # Without a Cargo.lock, cargo resolves the newest compatible versions (and writes the lock):
-    # the same versions a first `cargo build` would use.
-    locked = os.path.exists(os.path.join(ROOT, "Cargo.lock"))
-    if not locked:
+    if not os.path.exists(os.path.join(ROOT, "Cargo.lock")):
         print("check_msrv: no Cargo.lock: checking the versions cargo resolves now",
               file=sys.stderr)
     declared = None
     worst = {}  # target -> (version, "name version")
     for target in targets:
         try:
-            meta = metadata(target, locked)
+            meta = metadata(target)
         except (OSError, subprocess.CalledProcessError, json.JSONDecodeError) as e:
             print(f"check_msrv: cargo metadata for {target} failed: {e}", file=sys.stderr)
             return 2
