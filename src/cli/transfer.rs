@@ -27,6 +27,11 @@ fn read_model(path: &Path) -> Result<(String, BlobSet), String> {
 
 /// Runs the command.
 pub fn run(args: &Args) -> Result<(), String> {
+    // Fail on an unwritable output before the (possibly long) transfer, not after it.
+    super::check_output(&args.out, &["glb", "gltf"])?;
+    if let Some(dir) = &args.artifacts {
+        std::fs::create_dir_all(dir).map_err(|e| format!("--artifacts {}: {e}", dir.display()))?;
+    }
     let (src_main, src_blobs) = read_model(&args.source)?;
     let (tgt_main, tgt_blobs) = read_model(&args.target)?;
     let mut constraints = match &args.constraints {
@@ -101,7 +106,6 @@ pub fn run(args: &Args) -> Result<(), String> {
     let output = result?;
     std::fs::write(&args.out, &output.model).map_err(|e| format!("{}: {e}", args.out.display()))?;
     if let Some(dir) = &args.artifacts {
-        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
         for a in &output.artifacts {
             let p = dir.join(&a.name);
             std::fs::write(&p, &a.bytes).map_err(|e| format!("{}: {e}", p.display()))?;
