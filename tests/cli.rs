@@ -103,3 +103,87 @@ fn inspect_reports_counts_and_problems() {
     let s = String::from_utf8_lossy(&text.stdout);
     assert!(s.contains("open boundary"), "{s}");
 }
+
+#[test]
+fn transfer_checks_the_output_folder_before_reading_the_models() {
+    // The source does not exist either: the output is checked first, so the error names it.
+    let out = retex()
+        .args(["transfer", "--quiet", "--source", "/nonexistent/src.glb"])
+        .args(["--target", "/nonexistent/tgt.glb"])
+        .args(["--out", "/tmp/retex-missing-folder/sub/x.glb"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("the folder /tmp/retex-missing-folder/sub does not exist"),
+        "{err}"
+    );
+    assert!(!err.contains("src.glb"), "{err}");
+    // An existing folder given as --out.
+    let out = retex()
+        .args(["transfer", "--quiet", "--source", "/nonexistent/src.glb"])
+        .args(["--target", "/nonexistent/tgt.glb", "--out", "/tmp"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("is a folder"));
+}
+
+#[test]
+fn unexpected_output_extensions_warn() {
+    // The warning comes before the models are read (the missing source then fails the run).
+    let out = retex()
+        .args(["transfer", "--quiet", "--source", "/nonexistent/src.glb"])
+        .args([
+            "--target",
+            "/nonexistent/tgt.glb",
+            "--out",
+            "/tmp/retex-out.obj",
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("warning: --out /tmp/retex-out.obj does not end in .glb or .gltf"),
+        "{err}"
+    );
+    assert!(err.contains("/nonexistent/src.glb"), "{err}");
+    let out = retex()
+        .args([
+            "preview",
+            "/nonexistent/model.glb",
+            "--out",
+            "/tmp/retex-strip.jpg",
+        ])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("does not end in .png"), "{err}");
+    let out = retex()
+        .args([
+            "preview",
+            "/nonexistent/model.glb",
+            "--out",
+            "/tmp/retex-missing-folder/a.png",
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("does not exist"), "{err}");
+    assert!(!err.contains("model.glb"), "{err}");
+}
+
+#[test]
+fn a_model_that_is_not_gltf_is_named() {
+    let out = retex()
+        .arg("inspect")
+        .arg(shared_asset("src_spot_keenan/spot_triangulated.obj"))
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("is a Wavefront OBJ file, not glTF"), "{err}");
+    assert!(err.contains("obj2gltf"), "{err}");
+}

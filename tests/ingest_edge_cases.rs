@@ -1088,3 +1088,36 @@ fn texcoord_override_and_strips_fans_and_no_scene() {
     // No scenes: every root node is instantiated.
     assert_eq!(a.instances.len(), 1);
 }
+
+#[test]
+fn a_main_file_that_is_not_gltf_is_named_with_what_is_accepted() {
+    let png = common::bomb_png(4, 4);
+    let cases: [(&str, &[u8], &str); 5] = [
+        (
+            "spot.obj",
+            b"# Blender\nmtllib spot.mtl\no spot\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/1 3/1\n",
+            "is a Wavefront OBJ file",
+        ),
+        ("texture.glb", &png, "is a PNG image"),
+        ("notes.gltf", b"hello, this is not a model\n", "is plain text"),
+        ("blank.gltf", b"\n  \n", "is blank"),
+        ("empty.glb", b"", "is empty (0 bytes)"),
+    ];
+    for (name, bytes, expected) in cases {
+        let mut blobs = BlobSet::new();
+        blobs.insert(name, bytes.to_vec());
+        let e = load(name, &blobs, &IngestLimits::default()).unwrap_err();
+        let message = e.to_string();
+        assert!(message.contains(expected), "{name}: {message}");
+        assert!(
+            message.contains("retex reads glTF 2.0"),
+            "{name}: {message}"
+        );
+        let kind = if bytes.is_empty() {
+            "empty-file"
+        } else {
+            "not-gltf"
+        };
+        assert_eq!(e.kind(), kind, "{name}");
+    }
+}

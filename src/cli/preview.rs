@@ -18,6 +18,7 @@ pub struct Args {
 pub fn run(args: &Args) -> Result<(), String> {
     // Check the parameters before reading a possibly large model.
     args.params.validate().map_err(|e| e.to_string())?;
+    super::check_output(&args.out, &["png"])?;
     let path = &args.file;
     let (main, blobs) = BlobSet::from_path(path).map_err(|e| format!("{}: {e}", path.display()))?;
     let asset = load(&main, &blobs, &IngestLimits::default())

@@ -29,6 +29,11 @@ fn read_model(path: &Path) -> Result<(String, BlobSet), String> {
 
 /// Runs the command.
 pub fn run(args: &Args) -> Result<(), String> {
+    // Fail on an unwritable output before the (possibly long) transfer, not after it.
+    super::check_output(&args.out, &["glb", "gltf"])?;
+    if let Some(dir) = &args.artifacts {
+        std::fs::create_dir_all(dir).map_err(|e| format!("--artifacts {}: {e}", dir.display()))?;
+    }
     let source = args.source.as_deref().map(read_model).transpose()?;
     let (tgt_main, tgt_blobs) = read_model(&args.target)?;
     let base = args.source_base.as_deref().map(read_model).transpose()?;
@@ -113,7 +118,6 @@ pub fn run(args: &Args) -> Result<(), String> {
     let output = result?;
     std::fs::write(&args.out, &output.model).map_err(|e| format!("{}: {e}", args.out.display()))?;
     if let Some(dir) = &args.artifacts {
-        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
         for a in &output.artifacts {
             let p = dir.join(&a.name);
             std::fs::write(&p, &a.bytes).map_err(|e| format!("{}: {e}", p.display()))?;

@@ -19,10 +19,25 @@ pub enum IngestError {
         name: String,
     },
     /// The main file has zero bytes.
-    #[error("file {name:?} is empty")]
+    #[error(
+        "file {name:?} is empty (0 bytes): retex reads glTF 2.0 (.glb, or .gltf with its files)"
+    )]
     EmptyFile {
         /// The file name.
         name: String,
+    },
+    /// The main file is another format (an OBJ, an image, text...), recognized by its first
+    /// bytes ([`super::sniff`]).
+    #[error(
+        "{name:?} is {format}, not glTF: retex reads glTF 2.0 (.glb, or .gltf with its files){advice}"
+    )]
+    NotGltf {
+        /// The file name.
+        name: String,
+        /// What the file is, e.g. `a Wavefront OBJ file`.
+        format: &'static str,
+        /// What to do instead, starting with `; ` (empty when there is nothing to add).
+        advice: String,
     },
     /// The upload (all blobs together) is larger than `max_input_bytes`.
     #[error("the upload has {bytes} bytes, over the limit of {max}")]
@@ -342,6 +357,7 @@ impl IngestError {
         match self {
             MissingMain { .. } => "missing-main",
             EmptyFile { .. } => "empty-file",
+            NotGltf { .. } => "not-gltf",
             InputTooLarge { .. } => "input-too-large",
             Glb(_) => "invalid-glb",
             JsonTooLarge { .. } => "json-too-large",

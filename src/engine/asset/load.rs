@@ -1,7 +1,8 @@
 //! Safe ingest of a glTF 2.0 asset from named blobs into the [`Asset`] model.
 //!
 //! Order of work, each step checked before the next allocates anything sized by the file:
-//! upload size; container ([`super::glb`], §4.4); JSON size and syntax, kept verbatim; the typed
+//! upload size; another format than glTF ([`super::sniff`]: OBJ, PNG, text...); container
+//! ([`super::glb`], §4.4); JSON size and syntax, kept verbatim; the typed
 //! document (§3, via `gltf::json`), `asset.version` 2.x (§3.2) and `extensionsRequired` (§3.12);
 //! buffers (§3.6.1: URI or GLB BIN chunk, exact `byteLength`) through [`super::uri`] (§2.8);
 //! every buffer view and accessor ([`super::accessor`], §3.6.2); images, textures and materials
@@ -26,7 +27,7 @@ use super::accessor;
 use super::meshes::read_meshes;
 use super::model::*;
 use super::scene::scene_instances;
-use super::{glb, images, uri, BlobSet, IngestError};
+use super::{glb, images, sniff, uri, BlobSet, IngestError};
 
 /// Limits applied while loading. Every size is checked before the allocation it guards.
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -138,6 +139,17 @@ fn load_unguarded(
     if bytes.is_empty() {
         return Err(IngestError::EmptyFile {
             name: main.to_string(),
+        });
+    }
+    if let Some(f) = sniff::foreign_format(bytes) {
+        return Err(IngestError::NotGltf {
+            name: main.to_string(),
+            format: f.what,
+            advice: if f.advice.is_empty() {
+                String::new()
+            } else {
+                format!("; {}", f.advice)
+            },
         });
     }
     let looks_like_json = bytes

@@ -14,6 +14,7 @@ pub mod load;
 pub mod meshes;
 pub mod model;
 pub mod scene;
+pub mod sniff;
 pub mod uri;
 
 pub use blobs::BlobSet;
