@@ -558,7 +558,7 @@ fn cpu_seconds() -> f64 {
 /// Geodesic fans R=3, A=18, RGB on a 64K-vertex icosphere. Run with
 /// `cargo test --release --no-default-features --test geodesic_fans -- --ignored --nocapture`.
 #[test]
-#[ignore]
+#[ignore = "benchmark: run with --ignored --nocapture"]
 fn bench_geodesic_fans_64k() {
     let s = icosphere(80);
     let values = bumpy_values(&s, 6.0);

@@ -848,13 +848,13 @@ fn bench_hierarchy_on(name: &str, s: &Surface) {
 }
 
 #[test]
-#[ignore]
+#[ignore = "benchmark: run with --ignored --nocapture"]
 fn bench_hierarchy_torus_64k() {
     bench_hierarchy_on("torus 256x256", &torus(256, 256));
 }
 
 #[test]
-#[ignore]
+#[ignore = "benchmark: run with --ignored --nocapture"]
 fn bench_hierarchy_skull_50k() {
     bench_hierarchy_on(
         "skull",
@@ -863,7 +863,7 @@ fn bench_hierarchy_skull_50k() {
 }
 
 #[test]
-#[ignore]
+#[ignore = "benchmark: run with --ignored --nocapture"]
 fn bench_hierarchy_koala_50k() {
     bench_hierarchy_on(
         "koala",
@@ -872,7 +872,7 @@ fn bench_hierarchy_koala_50k() {
 }
 
 #[test]
-#[ignore]
+#[ignore = "benchmark: run with --ignored --nocapture"]
 fn bench_resample_5k_to_64k() {
     let s = asset_surface("perf_skull_odedstein/skull_low_resolution_derived.glb");
     let before = vm_hwm_kib();
