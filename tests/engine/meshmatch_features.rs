@@ -2,7 +2,7 @@
 //! geodesic affinities. Measured figures (release build, 2-core machine) are quoted next to each
 //! threshold.
 
-mod common;
+use crate::common;
 
 use std::time::Instant;
 
@@ -624,7 +624,7 @@ fn spot_features_finite() {
 
 /// Run time of the automatic features on a 16 002-vertex ellipsoid (icosphere 40). Measured
 /// 0.88–1.26 s on the 2-core machine (shared with other builds). Ignored by default:
-/// `cargo test --release --test meshmatch_features bench_ -- --ignored --nocapture`.
+/// `cargo test --release --test engine meshmatch_features::bench_ -- --ignored --nocapture`.
 #[test]
 #[ignore = "benchmark: run with --ignored --nocapture"]
 fn bench_automatic_features_16k() {

@@ -2,9 +2,9 @@
 //! level sizes, manifoldness, topology, Hausdorff distance, orientation, the vertex tree and its
 //! random descendants, prolongation, and (face, barycentric) back-links, on analytic meshes and
 //! real assets. Benchmarks are `#[ignore]`d tests: run them with
-//! `cargo test --release --no-default-features --test multires_properties -- --ignored --nocapture bench_`.
+//! `cargo test --release --no-default-features --test engine multires_properties::bench_ -- --ignored --nocapture`.
 
-mod common;
+use crate::common;
 
 use std::collections::HashMap;
 

@@ -2,7 +2,7 @@
 //! function of UV, pad, encode to PNG and decode back.
 //!
 //! `bench_texture_stages_2048` (ignored) prints timings of the hot paths at production sizes; run it with
-//! `cargo test --release --test texture_properties -- --ignored --nocapture`. Timings are not
+//! `cargo test --release --test engine texture_properties::bench_ -- --ignored --nocapture`. Timings are not
 //! asserted here (they belong in benchmarks).
 
 use retex::engine::texture::bake::{rasterize_uv_layout, TexelHit};
