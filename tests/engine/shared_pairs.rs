@@ -2,9 +2,7 @@
 //! multi-material target with texture transforms, a target with its own UVs under a rotated
 //! node, skinned and non-indexed sources, an open-boundary bust, a genus-1 target.
 
-mod common;
-
-use common::*;
+use crate::common::*;
 use retex::engine::asset::constraints::Constraints;
 use retex::engine::asset::{BlobSet, IngestLimits};
 use retex::engine::control::Control;

@@ -2,7 +2,7 @@
 //! geodesic affinities. Measured figures (release build, 2-core machine) are quoted next to each
 //! threshold.
 
-mod common;
+use crate::common;
 
 use std::time::Instant;
 
@@ -624,10 +624,10 @@ fn spot_features_finite() {
 
 /// Run time of the automatic features on a 16 002-vertex ellipsoid (icosphere 40). Measured
 /// 0.88–1.26 s on the 2-core machine (shared with other builds). Ignored by default:
-/// `cargo test --release --test meshmatch_features -- --ignored`.
+/// `cargo test --release --test engine meshmatch_features::bench_ -- --ignored --nocapture`.
 #[test]
-#[ignore]
-fn timing_16k() {
+#[ignore = "benchmark: run with --ignored --nocapture"]
+fn bench_automatic_features_16k() {
     let s = ellipsoid(40, AXES);
     let t0 = Instant::now();
     let f = features(&s);

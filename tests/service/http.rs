@@ -3,15 +3,14 @@
 //! with the Khronos validator; cancellation; idempotency; ETag/304; Range; pagination; auth;
 //! CORS; queue-full 503; and that the engine runs on the runner's threads only.
 
-mod common;
-mod service_common;
+use crate::common;
 
 use std::io::{BufRead, BufReader};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use service_common::*;
+use crate::service_common::*;
 
 fn id_of(r: &Resp) -> String {
     match r.json()["id"].as_str() {

@@ -3,10 +3,9 @@
 //! constraints and size limits gets a 4xx problem naming the field and the limit, never a 5xx,
 //! and nothing is accepted.
 
-mod common;
-mod service_common;
+use crate::common;
 
-use service_common::*;
+use crate::service_common::*;
 
 /// A one-triangle .gltf with `tri.bin`; `patch` edits the JSON.
 fn triangle_parts(patch: impl FnOnce(&mut serde_json::Value)) -> Vec<Part<'static>> {

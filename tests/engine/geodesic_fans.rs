@@ -1,6 +1,6 @@
 //! Exponential map and geodesic fans: analytic cases on a plane and a sphere, rotation
 //! recovery, determinism across thread counts, errors; and an ignored benchmark
-//! (`cargo test --release --no-default-features --test geodesic_fans -- --ignored --nocapture`).
+//! (`cargo test --release --no-default-features --test engine geodesic_fans::bench_ -- --ignored --nocapture`).
 
 use glam::{DVec3, Quat, Vec3};
 use retex::engine::control::Control;
@@ -556,9 +556,9 @@ fn cpu_seconds() -> f64 {
 }
 
 /// Geodesic fans R=3, A=18, RGB on a 64K-vertex icosphere. Run with
-/// `cargo test --release --no-default-features --test geodesic_fans -- --ignored --nocapture`.
+/// `cargo test --release --no-default-features --test engine geodesic_fans::bench_ -- --ignored --nocapture`.
 #[test]
-#[ignore]
+#[ignore = "benchmark: run with --ignored --nocapture"]
 fn bench_geodesic_fans_64k() {
     let s = icosphere(80);
     let values = bumpy_values(&s, 6.0);

@@ -2,9 +2,9 @@
 //! level sizes, manifoldness, topology, Hausdorff distance, orientation, the vertex tree and its
 //! random descendants, prolongation, and (face, barycentric) back-links, on analytic meshes and
 //! real assets. Benchmarks are `#[ignore]`d tests: run them with
-//! `cargo test --release --no-default-features --test multires_properties -- --ignored --nocapture bench_`.
+//! `cargo test --release --no-default-features --test engine multires_properties::bench_ -- --ignored --nocapture`.
 
-mod common;
+use crate::common;
 
 use std::collections::HashMap;
 
@@ -848,13 +848,13 @@ fn bench_hierarchy_on(name: &str, s: &Surface) {
 }
 
 #[test]
-#[ignore]
+#[ignore = "benchmark: run with --ignored --nocapture"]
 fn bench_hierarchy_torus_64k() {
     bench_hierarchy_on("torus 256x256", &torus(256, 256));
 }
 
 #[test]
-#[ignore]
+#[ignore = "benchmark: run with --ignored --nocapture"]
 fn bench_hierarchy_skull_50k() {
     bench_hierarchy_on(
         "skull",
@@ -863,7 +863,7 @@ fn bench_hierarchy_skull_50k() {
 }
 
 #[test]
-#[ignore]
+#[ignore = "benchmark: run with --ignored --nocapture"]
 fn bench_hierarchy_koala_50k() {
     bench_hierarchy_on(
         "koala",
@@ -872,7 +872,7 @@ fn bench_hierarchy_koala_50k() {
 }
 
 #[test]
-#[ignore]
+#[ignore = "benchmark: run with --ignored --nocapture"]
 fn bench_resample_5k_to_64k() {
     let s = asset_surface("perf_skull_odedstein/skull_low_resolution_derived.glb");
     let before = vm_hwm_kib();

@@ -4,15 +4,14 @@
 //! reason), none lost or duplicated, and results must download. Then SIGTERM stops the server
 //! cleanly within its deadline.
 
-mod common;
-mod service_common;
+use crate::common;
 
 use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use service_common::*;
+use crate::service_common::*;
 
 /// Kills the child when a test fails, so no server outlives it.
 struct Guard(Child);

@@ -1,11 +1,9 @@
 //! The turntable preview renderer: coverage and framing in every view, the base color factor and
 //! texture showing through, parameter checks, and the `retex preview` command.
 
-mod common;
+use crate::common::glb;
 
-use common::glb;
-
-use common::*;
+use crate::common::*;
 use retex::engine::asset::Asset;
 use retex::engine::texture::bake::rasterize_uv_layout;
 use retex::engine::texture::color::srgb8_to_linear;
@@ -307,6 +305,9 @@ fn bad_params_and_empty_assets_are_errors() {
     assert_eq!((p.views, p.size, p.shading), (3, 256, true));
 }
 
+/// Runs the `retex` binary, so it needs the `cli` feature (the rest of the engine tests build
+/// with `--no-default-features`).
+#[cfg(feature = "cli")]
 #[test]
 fn cli_writes_a_png_strip() {
     let dir =

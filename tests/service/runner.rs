@@ -4,7 +4,7 @@
 //! canceled within 2 s; at most `workers` jobs run; shutdown re-enqueues a running job.
 #![cfg(feature = "service")]
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};

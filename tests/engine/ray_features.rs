@@ -559,7 +559,7 @@ fn usage() -> (u64, f64) {
     )
 }
 
-/// `cargo test --release --no-default-features --test ray_features -- --ignored --nocapture`
+/// `cargo test --release --no-default-features --test engine ray_features::bench_ -- --ignored --nocapture`
 #[test]
 #[ignore = "benchmark: run with --release"]
 fn bench_solid_angle_4_radii_and_occlusion_64_rays_on_64k_vertices() {

@@ -1,9 +1,9 @@
 //! Analytic and invariant tests of the geometry core: cotan Laplacian and mass, sparse Cholesky
 //! with reused symbolic analysis, heat-method geodesics, bounded walks, curvature.
 
-mod common_geometry;
+use crate::common_geometry;
 
-use common_geometry::{great_circle, jittered_sphere, mean_relative_error, random_vec};
+use crate::common_geometry::{great_circle, jittered_sphere, mean_relative_error, random_vec};
 
 use std::collections::BTreeMap;
 
@@ -539,14 +539,14 @@ fn params_deserialize_from_empty_json_to_defaults() {
 /// `$RETEX_CROSSCHECK_DIR` (default `target/crosscheck_libigl`).
 #[test]
 #[ignore = "run by scripts/crosscheck_libigl.py"]
-fn export_for_libigl_crosscheck() {
+fn crosscheck_libigl_export() {
     common_geometry::export_for_libigl();
 }
 
-/// Prints the geometry benchmark rows (release build: `cargo test --release --test
-/// geometry_core bench_geometry_64k -- --ignored --nocapture`).
+/// Prints the geometry benchmark rows (release build: `cargo test --release --test engine
+/// geometry_core::bench_geometry_64k -- --ignored --nocapture`).
 #[test]
-#[ignore = "benchmark; run explicitly"]
+#[ignore = "benchmark: run with --ignored --nocapture"]
 fn bench_geometry_64k() {
     use retex::engine::geometry::bench::{bench_geometry, peak_memory_mib};
     let runs = std::env::var("RETEX_BENCH_RUNS")

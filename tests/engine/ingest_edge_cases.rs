@@ -2,7 +2,7 @@
 //! file either loads with the expected content or fails with the expected error variant, and
 //! nothing panics.
 
-mod common;
+use crate::common;
 
 use retex::engine::asset::glb::GlbError;
 use retex::engine::asset::*;

@@ -3,11 +3,10 @@
 //! transfers that pass the validator with turntable previews, the NNF artifact, determinism with
 //! any thread count, and clear errors for bad parameters.
 
-mod common;
-mod meshmatch_common;
+use crate::common;
 
-use common::{assert_validator_clean, load_bytes, load_path, shared_asset};
-use meshmatch_common::{capsule, colored_points, glb_of, run_bytes};
+use crate::common::{assert_validator_clean, load_bytes, load_path, shared_asset};
+use crate::meshmatch_common::{capsule, colored_points, glb_of, run_bytes};
 use retex::engine::methods::meshmatch::nnf_file::NnfFile;
 use retex::engine::texture::preview::{render_turntable, PreviewParams};
 

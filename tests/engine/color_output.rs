@@ -1,11 +1,9 @@
 //! `write_color_field` with hand-made fields: a constant field bakes that color everywhere, a
 //! field that declines everywhere still yields a padded texture, cancellation stops the bake.
 
-mod common;
-
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use common::*;
+use crate::common::*;
 use retex::engine::asset::constraints::Constraints;
 use retex::engine::control::{Cancelled, Control};
 use retex::engine::methods::color_output::{write_color_field, ColorField};

@@ -1,8 +1,8 @@
 //! Properties of the texture pipeline end to end: rasterize a UV layout, fill texels from a
 //! function of UV, pad, encode to PNG and decode back.
 //!
-//! `perf_smoke` (ignored) prints timings of the hot paths at production sizes; run it with
-//! `cargo test --release --test texture_properties -- --ignored --nocapture`. Timings are not
+//! `bench_texture_stages_2048` (ignored) prints timings of the hot paths at production sizes; run it with
+//! `cargo test --release --test engine texture_properties::bench_ -- --ignored --nocapture`. Timings are not
 //! asserted here (they belong in benchmarks).
 
 use retex::engine::texture::bake::{rasterize_uv_layout, TexelHit};
@@ -150,8 +150,8 @@ fn cpu_time() -> std::time::Duration {
 }
 
 #[test]
-#[ignore = "timing report, run with --ignored --nocapture"]
-fn perf_smoke() {
+#[ignore = "benchmark (timing report): run with --ignored --nocapture"]
+fn bench_texture_stages_2048() {
     let size = 2048u32;
     // 224² cells × 2 = 100 352 triangles.
     let tris = chart_grid(224, 0.12);

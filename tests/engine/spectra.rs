@@ -301,7 +301,7 @@ fn peak_memory_kib() -> Option<u64> {
     line.split_whitespace().nth(1)?.parse().ok()
 }
 
-/// `cargo test --release --no-default-features --test spectra -- --ignored --nocapture`
+/// `cargo test --release --no-default-features --test engine spectra::bench_ -- --ignored --nocapture`
 #[test]
 #[ignore = "benchmark: run with --release --ignored"]
 fn bench_hks_64k_vertices() {

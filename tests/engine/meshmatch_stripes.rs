@@ -8,10 +8,9 @@
 //! period within 25% of the source's period there, while `project` (a one-to-one map: the
 //! similarity fitted to the same correspondences) stretches it by about 2×.
 
-mod common;
-mod meshmatch_common;
+use crate::common;
 
-use meshmatch_common::{capsule, colored_points, glb_of, run_bytes};
+use crate::meshmatch_common::{capsule, colored_points, glb_of, run_bytes};
 
 const W0: f32 = 0.8;
 const K: f32 = 0.125;

@@ -3,16 +3,13 @@
 //! structurally valid OpenAPI 3 (required fields, every route, every `$ref` resolves), and the
 //! example TOML in `deploy/` loads with the real config loader.
 //!
-//! After changing the API: `RETEX_UPDATE_OPENAPI=1 cargo test --test service_openapi`.
-
-mod common;
-mod service_common;
+//! After changing the API: `RETEX_UPDATE_OPENAPI=1 cargo test --test service openapi::`.
 
 use std::path::PathBuf;
 
+use crate::service_common::*;
 use retex::service::config::ServeConfig;
 use retex::service::http::openapi;
-use service_common::*;
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -28,7 +25,7 @@ fn committed_yaml_matches_the_code() {
     let committed = std::fs::read_to_string(&file).unwrap_or_default();
     assert!(
         committed == generated,
-        "api/openapi.yaml differs from the code: run RETEX_UPDATE_OPENAPI=1 cargo test --test service_openapi"
+        "api/openapi.yaml differs from the code: run RETEX_UPDATE_OPENAPI=1 cargo test --test service openapi::"
     );
 }
 

@@ -2,11 +2,9 @@
 //! tessellations, alignment from correspondences, determinism, coverage bookkeeping, and the
 //! Khronos validator on every output.
 
-mod common;
+use crate::common::glb;
 
-use common::glb;
-
-use common::*;
+use crate::common::*;
 use retex::engine::asset::constraints::{Constraints, OutputFormat};
 use retex::engine::asset::{Asset, BlobSet, IngestLimits};
 use retex::engine::control::Control;
