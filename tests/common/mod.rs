@@ -3,6 +3,8 @@
 
 use std::path::PathBuf;
 
+pub mod planar_pattern;
+
 /// The shared asset folder: `$RETEX_SHARED_ASSETS`, else `../shared/assets` next to the crate.
 pub fn shared_assets_dir() -> PathBuf {
     if let Ok(dir) = std::env::var("RETEX_SHARED_ASSETS") {

@@ -6,7 +6,9 @@
 #![allow(dead_code)]
 
 use retex::engine::asset::constraints::{Constraints, ConstraintsError, MethodId};
-use retex::engine::asset::edits::{Edit, EncodedImage, PrimitiveGeometry, TextureSlot, TextureWrap};
+use retex::engine::asset::edits::{
+    Edit, EncodedImage, PrimitiveGeometry, TextureSlot, TextureWrap,
+};
 use retex::engine::asset::Asset;
 use retex::engine::control::Control;
 use retex::engine::methods::{
@@ -16,7 +18,9 @@ use serde_json::{json, Value};
 
 /// A 32×16 JPEG.
 pub fn small_jpeg() -> Vec<u8> {
-    let img = image::RgbImage::from_fn(32, 16, |x, y| image::Rgb([(x * 8) as u8, (y * 16) as u8, 90]));
+    let img = image::RgbImage::from_fn(32, 16, |x, y| {
+        image::Rgb([(x * 8) as u8, (y * 16) as u8, 90])
+    });
     let mut out = std::io::Cursor::new(Vec::new());
     img.write_to(&mut out, image::ImageFormat::Jpeg).unwrap();
     out.into_inner()
@@ -112,4 +116,3 @@ impl Method for PlanarPattern {
         Ok(out)
     }
 }
-

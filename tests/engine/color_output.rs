@@ -5,6 +5,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use crate::common::*;
 use retex::engine::asset::constraints::Constraints;
+use retex::engine::asset::edits::{Edit, EncodedImage, PrimitiveGeometry};
 use retex::engine::control::{Cancelled, Control};
 use retex::engine::methods::color_output::{write_color_field, ColorField};
 use retex::engine::texture::encode::decode_png_linear;
@@ -45,14 +46,21 @@ fn a_constant_field_bakes_its_color_and_colors_vertices() {
     let spot = load_path(&shared_asset(SPOT));
     let c = constraints(r#"{"version": 1, "output": {"texture_size": 64}}"#);
     let color = [0.25, 0.5, 0.75, 1.0];
-    let (edits, report) =
-        write_color_field(&spot, &c, 1000, &Constant(color), &Control::new()).unwrap();
-    assert_eq!(edits.textures.len(), 1);
+    let control = Control::new();
+    let (edits, report) = write_color_field(&spot, &c, 1000, &Constant(color), &control).unwrap();
+    let textures: Vec<&EncodedImage> = edits
+        .iter()
+        .filter_map(|e| match e {
+            Edit::SetTexture { image, .. } => Some(image),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(textures.len(), 1);
     assert_eq!(report.textures.len(), 1);
     assert_eq!(report.textures[0].unmatched, 0);
-    let stages: Vec<&str> = report.timings_ms.iter().map(|t| t.0.as_str()).collect();
-    assert_eq!(stages, ["bake", "pad", "vertex_colors"]);
-    let (w, h, px) = decode_png_linear(&edits.textures[0].png).unwrap();
+    let stages: Vec<String> = control.timings().into_iter().map(|t| t.stage).collect();
+    assert_eq!(stages, ["bake", "pad"]);
+    let (w, h, px) = decode_png_linear(&textures[0].bytes).unwrap();
     assert_eq!((w, h), (64, 64));
     for p in px {
         for k in 0..3 {
@@ -63,9 +71,21 @@ fn a_constant_field_bakes_its_color_and_colors_vertices() {
     let boxed = load_path(&shared_asset(BOX_COLORS));
     let (edits, report) =
         write_color_field(&boxed, &c, 500, &Constant(color), &Control::new()).unwrap();
-    assert!(edits.textures.is_empty());
-    assert_eq!(edits.refined.len(), 1);
-    assert!(edits.refined[0].colors.iter().all(|c| *c == color));
+    assert!(!edits.iter().any(|e| matches!(e, Edit::SetTexture { .. })));
+    let refined: Vec<&PrimitiveGeometry> = edits
+        .iter()
+        .filter_map(|e| match e {
+            Edit::ReplacePrimitive { geometry, .. } => Some(geometry),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(refined.len(), 1);
+    assert!(refined[0]
+        .colors
+        .as_ref()
+        .unwrap()
+        .iter()
+        .all(|c| *c == color));
     assert_eq!(report.vertex_colors[0].unmatched, 0);
     assert!(!report.warnings.is_empty());
 }

@@ -21,6 +21,7 @@ mod ingest_edge_cases;
 mod meshmatch_features;
 mod meshmatch_stripes;
 mod meshmatch_transfer;
+mod method_seam;
 mod multires_properties;
 mod preview;
 mod project_transfer;

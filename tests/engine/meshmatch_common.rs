@@ -3,7 +3,7 @@
 #![allow(dead_code)]
 
 use retex::engine::asset::constraints::Constraints;
-use retex::engine::asset::{BlobSet, IngestLimits};
+use retex::engine::asset::BlobSet;
 use retex::engine::control::Control;
 use retex::engine::pipeline::{transfer, ModelInput, TransferInput, TransferOutput};
 
@@ -83,18 +83,17 @@ pub fn run_bytes(
     tb.insert(target.0, target.1);
     let c: Constraints = serde_json::from_value(constraints).unwrap();
     transfer(
-        &TransferInput {
-            source: ModelInput {
+        &TransferInput::pair(
+            ModelInput {
                 main: source.0,
                 blobs: &sb,
             },
-            target: ModelInput {
+            ModelInput {
                 main: target.0,
                 blobs: &tb,
             },
-            constraints: c,
-            limits: IngestLimits::default(),
-        },
+            c,
+        ),
         &Control::new(),
     )
     .unwrap()

@@ -424,18 +424,17 @@ fn bad_parameters_name_their_field() {
         let mut blobs = retex::engine::asset::BlobSet::new();
         blobs.insert(sn.clone(), sb.clone());
         retex::engine::pipeline::transfer(
-            &retex::engine::pipeline::TransferInput {
-                source: retex::engine::pipeline::ModelInput {
+            &retex::engine::pipeline::TransferInput::pair(
+                retex::engine::pipeline::ModelInput {
                     main: &sn,
                     blobs: &blobs,
                 },
-                target: retex::engine::pipeline::ModelInput {
+                retex::engine::pipeline::ModelInput {
                     main: &sn,
                     blobs: &blobs,
                 },
-                constraints: c,
-                limits: Default::default(),
-            },
+                c,
+            ),
             &retex::engine::control::Control::new(),
         )
         .map(|_| ())
@@ -477,18 +476,18 @@ fn cancel_stops_a_running_synthesis() {
         std::time::Instant::now()
     });
     let result = transfer(
-        &TransferInput {
-            source: ModelInput {
+        &TransferInput::pair(
+            ModelInput {
                 main: &sn,
                 blobs: &s,
             },
-            target: ModelInput {
+            ModelInput {
                 main: &tn,
                 blobs: &t,
             },
-            constraints: c,
-            limits: Default::default(),
-        },
+            c,
+        )
+        .with_limits(Default::default()),
         &control,
     );
     let asked = canceller.join().unwrap();

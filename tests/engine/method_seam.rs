@@ -10,15 +10,21 @@ use retex::engine::asset::export::{export, ExportError};
 use retex::engine::asset::{Asset, BlobSet};
 use retex::engine::control::Control;
 use retex::engine::methods::Registry;
-use retex::engine::pipeline::{transfer, transfer_with, ImageInput, ModelInput, TransferError, TransferInput};
+use retex::engine::pipeline::{
+    transfer, transfer_with, ImageInput, ModelInput, TransferError, TransferInput,
+};
 use retex::engine::texture::encode::encode_png_srgb;
 use serde_json::{json, Value};
 
 use crate::common::planar_pattern::{small_jpeg, unwelded_with_planar_uvs, PLANAR_PATTERN};
-use crate::common::{assert_validator_clean, load_bytes, test_data};
+use crate::common::{assert_validator_clean, load_bytes};
 
 fn spot() -> (Vec<u8>, Asset) {
-    let bytes = std::fs::read(test_data("src_spot_keenan/spot_textured_derived.glb")).unwrap();
+    let bytes = std::fs::read(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/src_spot_keenan/spot_textured_derived.glb"
+    ))
+    .unwrap();
     let asset = load_bytes(&bytes, "spot.glb");
     (bytes, asset)
 }
@@ -32,7 +38,10 @@ fn gltf_json(glb: &[u8]) -> Value {
 fn gradient_png(size: u32) -> Vec<u8> {
     let px: Vec<[f32; 4]> = (0..size * size)
         .map(|i| {
-            let (x, y) = ((i % size) as f32 / size as f32, (i / size) as f32 / size as f32);
+            let (x, y) = (
+                (i % size) as f32 / size as f32,
+                (i / size) as f32 / size as f32,
+            );
             [x, y, 0.5, 1.0]
         })
         .collect();
@@ -121,10 +130,21 @@ fn pattern_shaped_output_passes_the_jpeg_through() {
     let back = load_bytes(&glb, "out.glb");
     let image = back.images.last().unwrap();
     assert_eq!(image.mime_type, "image/jpeg");
-    assert_eq!(image.bytes.as_slice(), jpeg.as_slice(), "image bytes unmodified");
+    assert_eq!(
+        image.bytes.as_slice(),
+        jpeg.as_slice(),
+        "image bytes unmodified"
+    );
     let prim = &back.primitives[0];
-    assert_eq!(prim.positions.len(), 3 * prim.triangles.len(), "unwelded corners");
-    assert!(prim.tex_coords[0].iter().any(|uv| uv[0] > 1.0), "UVs beyond [0,1] (REPEAT)");
+    assert_eq!(
+        prim.positions.len(),
+        3 * prim.triangles.len(),
+        "unwelded corners"
+    );
+    assert!(
+        prim.tex_coords[0].iter().any(|uv| uv[0] > 1.0),
+        "UVs beyond [0,1] (REPEAT)"
+    );
 }
 
 #[test]
@@ -135,7 +155,9 @@ fn detail_shaped_output_has_normal_map_tangents_and_16_bit_extras() {
     let material = target.primitives[p].material.expect("spot has a material");
     let size = 32u32;
     let normal_texels: Vec<f32> = (0..size * size).flat_map(|_| [0.5, 0.5, 1.0]).collect();
-    let height: Vec<f32> = (0..size * size).map(|i| (i % size) as f32 / size as f32).collect();
+    let height: Vec<f32> = (0..size * size)
+        .map(|i| (i % size) as f32 / size as f32)
+        .collect();
     // Tangents along +x (w = 1); the sphere-like Spot has no +x normals everywhere, but any unit
     // xyz with w = ±1 is a valid TANGENT.
     let tangents = vec![[1.0f32, 0.0, 0.0, 1.0]; n];
@@ -175,13 +197,19 @@ fn detail_shaped_output_has_normal_map_tangents_and_16_bit_extras() {
     let disp = &m["extras"]["retex_displacement"];
     assert_eq!(disp["scale"], json!(0.02));
     let tex = &j["textures"][disp["index"].as_u64().unwrap() as usize];
-    assert_eq!(j["samplers"][tex["sampler"].as_u64().unwrap() as usize]["wrapS"], 33071);
+    assert_eq!(
+        j["samplers"][tex["sampler"].as_u64().unwrap() as usize]["wrapS"],
+        33071
+    );
     let back = load_bytes(&glb, "out.glb");
     let img = &back.images[tex["source"].as_u64().unwrap() as usize];
     let decoded = image::load_from_memory(&img.bytes).unwrap();
     assert_eq!(decoded.color(), image::ColorType::L16, "16-bit grayscale");
     let gray = decoded.to_luma16();
-    assert_eq!(gray.get_pixel(size - 1, 0).0[0], ((31.0 / 32.0) * 65535.0f32 + 0.5) as u16);
+    assert_eq!(
+        gray.get_pixel(size - 1, 0).0[0],
+        ((31.0 / 32.0) * 65535.0f32 + 0.5) as u16
+    );
 }
 
 #[test]
@@ -208,7 +236,10 @@ fn edits_that_do_not_fit_are_errors() {
     };
     assert!(matches!(
         export(&asset, &[missing], OutputFormat::Glb),
-        Err(ExportError::BadEdit { what: "material", .. })
+        Err(ExportError::BadEdit {
+            what: "material",
+            ..
+        })
     ));
 }
 
@@ -230,7 +261,10 @@ fn a_method_registered_in_a_test_runs_through_the_pipeline() {
     // Not in the built-in registry: a clear error listing what is available.
     match transfer(&input, &Control::new()) {
         Err(e @ TransferError::MethodNotImplemented { .. }) => {
-            assert!(e.to_string().contains("available: project, meshmatch"), "{e}")
+            assert!(
+                e.to_string().contains("available: project, meshmatch"),
+                "{e}"
+            )
         }
         other => panic!("expected not implemented, got {other:?}"),
     }
@@ -240,13 +274,21 @@ fn a_method_registered_in_a_test_runs_through_the_pipeline() {
     assert_eq!(out.report.edited, EditedAsset::Target);
     assert_eq!(out.report.method_report["pattern_size"], json!([32, 16]));
     assert!((control.progress().fraction - 1.0).abs() < 1e-12);
-    let stages: Vec<&str> = out.report.timings.iter().map(|t| t.stage.as_str()).collect();
+    let stages: Vec<&str> = out
+        .report
+        .timings
+        .iter()
+        .map(|t| t.stage.as_str())
+        .collect();
     assert_eq!(stages, ["load", "planar uvs", "export"]);
     let names: Vec<&str> = out.artifacts.iter().map(|a| a.name.as_str()).collect();
     assert_eq!(names, ["pattern.jpg", "planar.txt", "report.json"]);
     assert_validator_clean(&out.model, "seam_test_method.glb");
     let back = load_bytes(&out.model, "out.glb");
-    assert_eq!(back.images.last().unwrap().bytes.as_slice(), jpeg.as_slice());
+    assert_eq!(
+        back.images.last().unwrap().bytes.as_slice(),
+        jpeg.as_slice()
+    );
 
     // The required pattern is checked before anything runs.
     let no_pattern = TransferInput::new(target, input.constraints().clone());
@@ -277,7 +319,10 @@ fn a_source_the_method_does_not_read_is_ignored_with_a_warning() {
     let registry = Registry::builtin().with(&PLANAR_PATTERN);
     let out = transfer_with(&registry, &input, &Control::new()).unwrap();
     assert!(
-        out.report.warnings.iter().any(|w| w.contains("does not read a source")),
+        out.report
+            .warnings
+            .iter()
+            .any(|w| w.contains("does not read a source")),
         "{:?}",
         out.report.warnings
     );
@@ -295,7 +340,10 @@ fn project_needs_a_source_and_checks_params_before_loading() {
     let input = TransferInput::new(m, Constraints::default());
     assert!(matches!(
         transfer(&input, &Control::new()),
-        Err(TransferError::MissingInput { input: "source", .. })
+        Err(TransferError::MissingInput {
+            input: "source",
+            ..
+        })
     ));
     let c = Constraints::from_json(
         br#"{"version": 1, "method": "meshmatch", "params": {"hks": {"hks_times": "many"}}}"#,

@@ -6,7 +6,7 @@ use crate::common::glb;
 
 use crate::common::*;
 use retex::engine::asset::constraints::{Constraints, OutputFormat};
-use retex::engine::asset::{Asset, BlobSet, IngestLimits};
+use retex::engine::asset::{Asset, BlobSet};
 use retex::engine::control::Control;
 use retex::engine::mesh::{build_surface, WeldParams};
 use retex::engine::pipeline::{transfer, ModelInput, TransferError, TransferInput, TransferOutput};
@@ -32,18 +32,17 @@ fn run(
     target: &(String, BlobSet),
     constraints: Constraints,
 ) -> Result<TransferOutput, TransferError> {
-    let input = TransferInput {
-        source: ModelInput {
+    let input = TransferInput::pair(
+        ModelInput {
             main: &source.0,
             blobs: &source.1,
         },
-        target: ModelInput {
+        ModelInput {
             main: &target.0,
             blobs: &target.1,
         },
         constraints,
-        limits: IngestLimits::default(),
-    };
+    );
     transfer(&input, &Control::new())
 }
 

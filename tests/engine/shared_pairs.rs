@@ -4,7 +4,7 @@
 
 use crate::common::*;
 use retex::engine::asset::constraints::Constraints;
-use retex::engine::asset::{BlobSet, IngestLimits};
+use retex::engine::asset::BlobSet;
 use retex::engine::control::Control;
 use retex::engine::pipeline::{transfer, ModelInput, TransferInput};
 
@@ -12,18 +12,17 @@ fn pair(source: &str, target: &str, name: &str) -> serde_json::Value {
     let (sm, sb) = BlobSet::from_path(&shared_asset(source)).unwrap();
     let (tm, tb) = BlobSet::from_path(&shared_asset(target)).unwrap();
     let c = Constraints::from_json(br#"{"version": 1, "output": {"texture_size": 256}, "params": {"vertex_color_samples": 20000}}"#).unwrap();
-    let input = TransferInput {
-        source: ModelInput {
+    let input = TransferInput::pair(
+        ModelInput {
             main: &sm,
             blobs: &sb,
         },
-        target: ModelInput {
+        ModelInput {
             main: &tm,
             blobs: &tb,
         },
-        constraints: c,
-        limits: IngestLimits::default(),
-    };
+        c,
+    );
     let out =
         transfer(&input, &Control::new()).unwrap_or_else(|e| panic!("{source} → {target}: {e}"));
     assert_validator_clean(&out.model, name);

@@ -9,6 +9,7 @@ mod service_common;
 
 mod http;
 mod http_errors;
+mod method_seam;
 mod openapi;
 mod recovery;
 mod runner;

@@ -5,10 +5,14 @@
 use retex::engine::methods::Registry;
 
 use crate::common::planar_pattern::{small_jpeg, PLANAR_PATTERN};
-use crate::service_common::{asset, get, submit, terminal, wait_for, Part, TestServer};
+use crate::service_common::{get, submit, terminal, wait_for, Part, TestServer};
 
 fn spot() -> Vec<u8> {
-    asset("src_spot_keenan/spot_textured_derived.glb")
+    std::fs::read(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/src_spot_keenan/spot_textured_derived.glb"
+    ))
+    .unwrap()
 }
 
 fn constraints(json: &str) -> Part<'static> {
@@ -63,17 +67,15 @@ fn unknown_methods_and_bad_params_are_422_at_submission() {
 fn parts_follow_the_methods_declared_inputs() {
     let server = TestServer::start(|_| {});
     // project reads a source.
-    let p = submit(
-        &server.base,
-        &[("target", "spot.glb", spot())],
-        &[],
-    )
-    .problem(400);
+    let p = submit(&server.base, &[("target", "spot.glb", spot())], &[]).problem(400);
     assert_eq!(p["field"], "source", "{p}");
     // Without a constraints part the job is {"version": 1}: project, defaults.
     let r = submit(
         &server.base,
-        &[("source", "spot.glb", spot()), ("target", "spot.glb", spot())],
+        &[
+            ("source", "spot.glb", spot()),
+            ("target", "spot.glb", spot()),
+        ],
         &[],
     );
     assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
@@ -115,7 +117,10 @@ fn a_method_registered_in_a_test_runs_end_to_end() {
     assert_eq!(result.status, 200);
     crate::common::assert_validator_clean(&result.body, "seam_http_test_method.glb");
     let back = crate::common::load_bytes(&result.body, "r.glb");
-    assert_eq!(back.images.last().unwrap().bytes.as_slice(), jpeg.as_slice());
+    assert_eq!(
+        back.images.last().unwrap().bytes.as_slice(),
+        jpeg.as_slice()
+    );
     let extra = get(&format!("{base}/v1/jobs/{id}/artifacts/planar.txt"));
     assert_eq!(extra.status, 200);
     assert_eq!(extra.body, b"planar projection onto x/y");

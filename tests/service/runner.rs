@@ -49,6 +49,7 @@ fn config(workers: usize) -> RunnerConfig {
         limits: IngestLimits::default(),
         max_texture_size: 8192,
         progress_interval: Duration::from_millis(50),
+        ..RunnerConfig::default()
     }
 }
 
@@ -90,8 +91,9 @@ fn submit(env: &Env, runner: &Runner, asset: &str, constraints: &str) -> Uuid {
         idempotency_key: None,
         request_hash: hex::encode(Sha256::digest(constraints.as_bytes())),
         inputs: JobInputs {
-            source,
+            source: Some(source),
             target,
+            source_base: None,
             constraints: ckey,
             pattern: None,
         },

@@ -267,6 +267,14 @@ pub fn test_config(data: &Path) -> ServeConfig {
 
 impl TestServer {
     pub fn start(edit: impl FnOnce(&mut ServeConfig)) -> TestServer {
+        Self::start_with_registry(retex::engine::methods::Registry::builtin(), edit)
+    }
+
+    /// A server whose jobs may run the methods of `registry`.
+    pub fn start_with_registry(
+        registry: retex::engine::methods::Registry,
+        edit: impl FnOnce(&mut ServeConfig),
+    ) -> TestServer {
         let data = tempfile::tempdir().unwrap();
         let mut config = test_config(data.path());
         edit(&mut config);
@@ -279,7 +287,9 @@ impl TestServer {
                 .build()
                 .unwrap();
             rt.block_on(async move {
-                let server = http::start(config).await.expect("server starts");
+                let server = http::start_with(config, registry)
+                    .await
+                    .expect("server starts");
                 tx.send((server.addr, server.state.clone())).unwrap();
                 let _ = stop_rx.await;
                 server.shutdown().await;

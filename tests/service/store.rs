@@ -52,11 +52,12 @@ fn job(created_at: DateTime<Utc>, method: &str) -> JobRecord {
         idempotency_key: None,
         request_hash: "h0".into(),
         inputs: JobInputs {
-            source: ModelFiles {
+            source: Some(ModelFiles {
                 main: "a.glb".into(),
                 files: vec![("a.glb".into(), "jobs/x/inputs/source/a.glb".into())],
-            },
+            }),
             target: ModelFiles::default(),
+            source_base: None,
             constraints: "jobs/x/inputs/constraints.json".into(),
             pattern: None,
         },
