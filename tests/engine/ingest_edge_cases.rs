@@ -683,7 +683,7 @@ fn decompression_bomb_png_is_refused_from_its_header() {
 fn glb_with_lying_chunk_lengths_is_refused() {
     let json = br#"{"asset":{"version":"2.0"},"buffers":[{"byteLength":4}]}"#;
     let mut json = json.to_vec();
-    while json.len() % 4 != 0 {
+    while !json.len().is_multiple_of(4) {
         json.push(b' ');
     }
     let build = |json_len: u32, bin_len: u32| {

@@ -594,7 +594,7 @@ fn by_example_with_an_image_mask() {
     let png_off = bin.len();
     bin.extend_from_slice(&png);
     let png_len = png.len();
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     let views = json["bufferViews"].as_array_mut().unwrap();

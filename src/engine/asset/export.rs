@@ -63,7 +63,7 @@ impl Builder {
     }
 
     pub(super) fn align(&mut self, to: usize) {
-        while self.bin.len() % to != 0 {
+        while !self.bin.len().is_multiple_of(to) {
             self.bin.push(0);
         }
     }

@@ -100,6 +100,9 @@ impl ColorField for SynthesizedField<'_> {
     }
 }
 
+/// The edits for the target, the report and the NNF artifact bytes.
+pub type RunOutput = (Vec<Edit>, MeshMatchReport, Option<Vec<u8>>);
+
 /// Runs `meshmatch`: returns the edits for the target, the report and the NNF artifact bytes.
 ///
 /// # Errors
@@ -110,7 +113,7 @@ pub fn run(
     constraints: &Constraints,
     params: &MeshMatchParams,
     control: &Control,
-) -> Result<(Vec<Edit>, MeshMatchReport, Option<Vec<u8>>), MeshMatchError> {
+) -> Result<RunOutput, MeshMatchError> {
     let mut warnings = Vec::new();
     let weld = WeldParams {
         relative_tolerance: params.weld_tolerance,
