@@ -8,13 +8,14 @@
 //! the edits ([`crate::engine::asset::edits::Edit`]), extra result files, warnings and its report.
 //!
 //! Shared building blocks: [`align`] (similarity from correspondences), [`correspondence`]
-//! (resolving constraint places onto surfaces), [`color_output`] (writing a colour field into a
-//! target's UV layout or COLOR_0).
+//! (resolving constraint places onto surfaces), [`output`] (writing an N-channel field into an
+//! asset's UV layout or a vertex attribute) and [`color_output`] (its base-colour form).
 
 pub mod align;
 pub mod color_output;
 pub mod correspondence;
 pub mod meshmatch;
+pub mod output;
 pub mod project;
 
 mod method;
