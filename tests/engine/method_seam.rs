@@ -354,3 +354,98 @@ fn project_needs_a_source_and_checks_params_before_loading() {
         other => panic!("expected a constraints error, got {other:?}"),
     }
 }
+
+/// A field that checks every sample it is given (the primitive, triangle and barycentric
+/// coordinates reproduce the world position) and returns the normal encoded as a normal map.
+struct CheckedNormals<'a> {
+    asset: &'a Asset,
+    worst: std::sync::Mutex<f32>,
+    samples: std::sync::atomic::AtomicUsize,
+}
+
+impl retex::engine::methods::output::SurfaceField for CheckedNormals<'_> {
+    fn channels(&self) -> usize {
+        3
+    }
+
+    fn sample(
+        &self,
+        at: &retex::engine::methods::output::SurfaceSample,
+        _hint: Option<u32>,
+        out: &mut [f32; 4],
+    ) -> Option<u32> {
+        let prim = &self.asset.primitives[at.primitive];
+        let inst = &self.asset.instances[0];
+        let t = prim.triangles[at.triangle];
+        let mut p = [0.0f64; 3];
+        for (k, &v) in t.iter().enumerate() {
+            let w = inst.transform_point(prim.positions[v as usize]);
+            for c in 0..3 {
+                p[c] += at.barycentric[k] as f64 * w[c];
+            }
+        }
+        let err = (0..3)
+            .map(|c| (p[c] as f32 - at.position[c]).abs())
+            .fold(0.0f32, f32::max);
+        let mut worst = self.worst.lock().unwrap();
+        *worst = worst.max(err);
+        self.samples
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        for c in 0..3 {
+            out[c] = 0.5 + 0.5 * at.normal[c];
+        }
+        Some(0)
+    }
+}
+
+#[test]
+fn an_n_channel_field_sees_the_full_surface_point_and_bakes_a_normal_map() {
+    use retex::engine::methods::output::{write_field, FieldOutput, TexelEncoding};
+    let (_, asset) = spot();
+    let field = CheckedNormals {
+        asset: &asset,
+        worst: std::sync::Mutex::new(0.0),
+        samples: Default::default(),
+    };
+    let c = Constraints::from_json(br#"{"version": 1, "output": {"texture_size": 128}}"#).unwrap();
+    let output = FieldOutput {
+        slot: TextureSlot::Normal { scale: 1.0 },
+        encoding: TexelEncoding::Linear8 { channels: 3 },
+        name: "retex_normal",
+        vertex_attribute: None,
+        vertex_samples: 1000,
+    };
+    let (edits, report) = write_field(&asset, &c, &output, &field, &Control::new()).unwrap();
+    let n = field.samples.load(std::sync::atomic::Ordering::Relaxed) as u64;
+    assert_eq!(
+        n, report.textures[0].covered,
+        "one sample per covered texel"
+    );
+    let worst = *field.worst.lock().unwrap();
+    assert!(worst < 1e-4, "sample position off its triangle by {worst}");
+    let glb = export(&asset, &edits, OutputFormat::Glb).unwrap();
+    assert_validator_clean(&glb, "seam_normal_field.glb");
+    let j = gltf_json(&glb);
+    let m = asset.primitives[0].material.unwrap();
+    let tex = j["materials"][m]["normalTexture"]["index"]
+        .as_u64()
+        .unwrap() as usize;
+    let back = load_bytes(&glb, "out.glb");
+    let img = &back.images[j["textures"][tex]["source"].as_u64().unwrap() as usize];
+    let decoded = image::load_from_memory(&img.bytes).unwrap();
+    assert_eq!(decoded.color(), image::ColorType::Rgb8);
+    // Normals are unit: at least the covered texels decode to length ~1 (padding averages).
+    let rgb = decoded.to_rgb8();
+    let unit = rgb
+        .pixels()
+        .filter(|p| {
+            let v: Vec<f32> = p.0.iter().map(|&x| x as f32 / 127.5 - 1.0).collect();
+            ((v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt() - 1.0).abs() < 0.05
+        })
+        .count();
+    let covered = report.textures[0].covered as f64;
+    assert!(
+        unit as f64 >= 0.95 * covered,
+        "{unit} unit texels of {covered} covered"
+    );
+}

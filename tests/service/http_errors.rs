@@ -128,14 +128,15 @@ fn malformed_uploads_get_4xx_problems_never_5xx() {
             None,
         ),
         (
+            // Without a constraints part the defaults apply: texture 2048 > this server's 1024.
             "missing constraints",
             spot_parts(64)
                 .into_iter()
                 .filter(|p| p.0 != "constraints")
                 .collect(),
-            400,
-            "constraints",
-            None,
+            422,
+            "constraints.output.texture_size",
+            Some("max_texture_size"),
         ),
         (
             "bad json constraints",

@@ -266,7 +266,10 @@ async fn bad_constraints_fail_with_a_problem_naming_the_field() {
     );
     let e = wait_terminal(&env2, capped).await.error.unwrap();
     assert_eq!(e.field.as_deref(), Some("constraints.output.texture_size"));
-    assert_eq!(e.limit, Some(serde_json::json!(1024)));
+    assert_eq!(
+        e.limit,
+        Some(serde_json::json!({"name": "max_texture_size", "value": 1024}))
+    );
     assert_eq!(e.status, 422);
     runner.shutdown(Duration::from_secs(1)).await;
 }

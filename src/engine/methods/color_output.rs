@@ -9,12 +9,12 @@ use crate::engine::asset::edits::{Edit, TextureSlot};
 use crate::engine::asset::Asset;
 use crate::engine::control::{Cancelled, Control};
 
+pub(super) use super::output::{dot, to_f32};
+use super::output::{write_field, FieldOutput, TexelEncoding};
 pub use super::output::{
     OutputReport as ColorOutputReport, SurfaceField, SurfaceSample, TextureReport,
     VertexColorReport,
 };
-use super::output::{write_field, FieldOutput, TexelEncoding};
-pub(super) use super::output::{dot, to_f32};
 
 /// A colour field over the target's world-space surface.
 pub trait ColorField: Sync {

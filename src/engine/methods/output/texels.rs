@@ -43,7 +43,11 @@ fn uv_set_of(asset: &Asset, p: usize) -> u32 {
 }
 
 /// Groups triangles by material (UV path) or collects primitives for the vertex path.
-pub(super) fn layout(asset: &Asset, constraints: &Constraints, warnings: &mut Vec<String>) -> Layout {
+pub(super) fn layout(
+    asset: &Asset,
+    constraints: &Constraints,
+    warnings: &mut Vec<String>,
+) -> Layout {
     let mut out = Layout {
         groups: Default::default(),
         vertex_path: Vec::new(),

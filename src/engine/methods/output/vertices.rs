@@ -166,30 +166,25 @@ pub(super) fn write_vertex_values(
         return Ok(edits);
     };
     let stage = control.stage("vertex_colors", vertex_path.len() as u64)?;
-    let area: f64 = vertex_path
+    let refine_it: Vec<bool> = vertex_path
         .iter()
-        .map(|&(p, ii)| primitive_world_area(asset, p, ii))
-        .sum();
-    let max_edge = edge_length_for_vertex_count(area, output.vertex_samples);
-    for &(p, ii) in vertex_path {
+        .map(|&(p, _)| {
+            let prim = &asset.primitives[p];
+            let prim_json = &asset.json["meshes"][prim.mesh]["primitives"][prim.primitive];
+            let skinned_or_morphed = prim_json.get("targets").is_some()
+                || prim_json["attributes"].get("JOINTS_0").is_some();
+            if !constraints.output.vertex_colors && skinned_or_morphed {
+                report.warnings.push(format!(
+                    "mesh {} primitive {} has skin or morph data; COLOR_0 was written on its own vertices instead of a refined copy",
+                    prim.mesh, prim.primitive
+                ));
+            }
+            !constraints.output.vertex_colors && !skinned_or_morphed
+        })
+        .collect();
+    let geometries = budgeted_geometries(asset, vertex_path, &refine_it, output, control)?;
+    for ((&(p, ii), g), refine_it) in vertex_path.iter().zip(geometries).zip(refine_it) {
         let prim = &asset.primitives[p];
-        let inst = &asset.instances[ii];
-        let prim_json = &asset.json["meshes"][prim.mesh]["primitives"][prim.primitive];
-        let skinned_or_morphed =
-            prim_json.get("targets").is_some() || prim_json["attributes"].get("JOINTS_0").is_some();
-        let refine_it = !constraints.output.vertex_colors && !skinned_or_morphed;
-        if !constraints.output.vertex_colors && skinned_or_morphed {
-            report.warnings.push(format!(
-                "mesh {} primitive {} has skin or morph data; COLOR_0 was written on its own vertices instead of a refined copy",
-                prim.mesh, prim.primitive
-            ));
-        }
-        let g = if refine_it {
-            refined_vertices(asset, p, max_edge / instance_scale(&inst.world))
-        } else {
-            own_vertices(asset, p)
-        };
-        control.check()?;
         let found = sample_vertices(asset, p, ii, &g, field, control)?;
         let unmatched = found.iter().filter(|c| c.is_none()).count();
         let values = fill_from_neighbours(found, &g.triangles);
@@ -234,6 +229,59 @@ pub(super) fn write_vertex_values(
         ));
     }
     Ok(edits)
+}
+
+/// Largest overshoot of the vertex budget accepted before the edge length is corrected.
+const BUDGET_TOLERANCE: f64 = 1.1;
+
+/// The geometry of every primitive on the vertex path: refined copies (where `refine_it`) whose
+/// vertices add up to at most about `output.vertex_samples` (within [`BUDGET_TOLERANCE`]), and
+/// own vertices elsewhere.
+///
+/// The first edge length assumes equilateral triangles of that length; longest-edge bisection
+/// leaves edges between half the bound and the bound, so it overshoots (about 1.8× on a remeshed
+/// Spot). Each retry lengthens the bound by the square root of the overshoot (the count goes
+/// with 1/length²), at most four times; inputs that already have more vertices than the budget
+/// are not refined further and cannot be reduced.
+fn budgeted_geometries(
+    asset: &Asset,
+    vertex_path: &[(usize, usize)],
+    refine_it: &[bool],
+    output: &FieldOutput,
+    control: &Control,
+) -> Result<Vec<VertexGeometry>, Cancelled> {
+    let budget = output.vertex_samples.max(1) as f64;
+    let area: f64 = vertex_path
+        .iter()
+        .zip(refine_it)
+        .filter(|(_, r)| **r)
+        .map(|(&(p, ii), _)| primitive_world_area(asset, p, ii))
+        .sum();
+    let mut max_edge = edge_length_for_vertex_count(area, output.vertex_samples);
+    let mut previous = None;
+    let mut attempt = 0;
+    loop {
+        let geometries: Vec<VertexGeometry> = vertex_path
+            .iter()
+            .zip(refine_it)
+            .map(|(&(p, ii), &refine)| {
+                if refine {
+                    let scale = instance_scale(&asset.instances[ii].world);
+                    refined_vertices(asset, p, max_edge / scale)
+                } else {
+                    own_vertices(asset, p)
+                }
+            })
+            .collect();
+        control.check()?;
+        let total: usize = geometries.iter().map(|g| g.positions.len()).sum();
+        attempt += 1;
+        if total as f64 <= BUDGET_TOLERANCE * budget || attempt == 5 || previous == Some(total) {
+            return Ok(geometries);
+        }
+        previous = Some(total);
+        max_edge *= (total as f64 / budget).sqrt() as f32;
+    }
 }
 
 /// The vertex path's edits, kept by kind so they are exported in a fixed order: materials
