@@ -449,3 +449,41 @@ fn an_n_channel_field_sees_the_full_surface_point_and_bakes_a_normal_map() {
         "{unit} unit texels of {covered} covered"
     );
 }
+
+/// A constant colour.
+struct Constant([f32; 4]);
+
+impl retex::engine::methods::color_output::ColorField for Constant {
+    fn color_at(&self, _p: [f32; 3], _n: [f32; 3], _h: Option<u32>) -> Option<([f32; 4], u32)> {
+        Some((self.0, 0))
+    }
+}
+
+#[test]
+fn the_color_0_fallback_keeps_to_its_vertex_budget() {
+    use retex::engine::methods::color_output::write_color_field;
+    let (_, mut asset) = spot();
+    for p in &mut asset.primitives {
+        p.tex_coords.clear();
+    }
+    let c = Constraints::default();
+    for budget in [5_000usize, 20_000, 60_000] {
+        let (edits, report) = write_color_field(
+            &asset,
+            &c,
+            budget,
+            &Constant([0.2, 0.4, 0.6, 1.0]),
+            &Control::new(),
+        )
+        .unwrap();
+        let written: usize = report.vertex_colors.iter().map(|v| v.vertices).sum();
+        assert!(report.vertex_colors.iter().all(|v| v.refined));
+        assert!(
+            written as f64 <= 1.1 * budget as f64 && written as f64 >= 0.6 * budget as f64,
+            "budget {budget}: {written} vertices"
+        );
+        let glb = export(&asset, &edits, OutputFormat::Glb).unwrap();
+        let back = load_bytes(&glb, "out.glb");
+        assert_eq!(back.primitives[0].positions.len(), written);
+    }
+}

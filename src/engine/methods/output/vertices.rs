@@ -231,18 +231,23 @@ pub(super) fn write_vertex_values(
     Ok(edits)
 }
 
-/// Largest overshoot of the vertex budget accepted before the edge length is corrected.
+/// Largest overshoot of the vertex budget accepted.
 const BUDGET_TOLERANCE: f64 = 1.1;
+
+/// Most refinements tried while searching the edge bound that fits the vertex budget.
+const BUDGET_SEARCH_STEPS: usize = 8;
 
 /// The geometry of every primitive on the vertex path: refined copies (where `refine_it`) whose
 /// vertices add up to at most about `output.vertex_samples` (within [`BUDGET_TOLERANCE`]), and
 /// own vertices elsewhere.
 ///
-/// The first edge length assumes equilateral triangles of that length; longest-edge bisection
-/// leaves edges between half the bound and the bound, so it overshoots (about 1.8× on a remeshed
-/// Spot). Each retry lengthens the bound by the square root of the overshoot (the count goes
-/// with 1/length²), at most four times; inputs that already have more vertices than the budget
-/// are not refined further and cannot be reduced.
+/// The first edge bound assumes equilateral triangles of that length; longest-edge bisection
+/// leaves edges between half the bound and the bound, so it overshoots (1.85× on the remeshed
+/// Spot), and since bisection is discrete the count jumps when the bound crosses a split level.
+/// So the bound is searched: lengthened by the square root of the overshoot until the count fits,
+/// then bisected between the last bound over budget and the best one under it (at most
+/// [`BUDGET_SEARCH_STEPS`] refinements in all), keeping the largest count that fits. Inputs that
+/// already have more vertices than the budget are not refined and cannot be reduced.
 fn budgeted_geometries(
     asset: &Asset,
     vertex_path: &[(usize, usize)],
@@ -250,17 +255,14 @@ fn budgeted_geometries(
     output: &FieldOutput,
     control: &Control,
 ) -> Result<Vec<VertexGeometry>, Cancelled> {
-    let budget = output.vertex_samples.max(1) as f64;
+    let budget = output.vertex_samples.max(1) as f64 * BUDGET_TOLERANCE;
     let area: f64 = vertex_path
         .iter()
         .zip(refine_it)
         .filter(|(_, r)| **r)
         .map(|(&(p, ii), _)| primitive_world_area(asset, p, ii))
         .sum();
-    let mut max_edge = edge_length_for_vertex_count(area, output.vertex_samples);
-    let mut previous = None;
-    let mut attempt = 0;
-    loop {
+    let build = |max_edge: f32| -> Result<(Vec<VertexGeometry>, usize), Cancelled> {
         let geometries: Vec<VertexGeometry> = vertex_path
             .iter()
             .zip(refine_it)
@@ -274,14 +276,45 @@ fn budgeted_geometries(
             })
             .collect();
         control.check()?;
-        let total: usize = geometries.iter().map(|g| g.positions.len()).sum();
-        attempt += 1;
-        if total as f64 <= BUDGET_TOLERANCE * budget || attempt == 5 || previous == Some(total) {
-            return Ok(geometries);
-        }
-        previous = Some(total);
-        max_edge *= (total as f64 / budget).sqrt() as f32;
+        let total = geometries.iter().map(|g| g.positions.len()).sum();
+        Ok((geometries, total))
+    };
+    let mut edge = edge_length_for_vertex_count(area, output.vertex_samples);
+    let (first, total) = build(edge)?;
+    if total as f64 <= budget || !edge.is_finite() {
+        return Ok(first);
     }
+    // (bound, count) over budget, and the best (bound, geometry, count) under it.
+    let mut over = (edge, total);
+    let mut under: Option<(f32, Vec<VertexGeometry>, usize)> = None;
+    let mut fallback = first;
+    for _ in 1..BUDGET_SEARCH_STEPS {
+        edge = match &under {
+            None => over.0 * (over.1 as f64 / budget).sqrt().max(1.05) as f32,
+            Some((u, _, _)) => 0.5 * (over.0 + u),
+        };
+        let (g, total) = build(edge)?;
+        if total as f64 <= budget {
+            let better = under.as_ref().is_none_or(|(_, _, best)| total >= *best);
+            if better {
+                under = Some((edge, g, total));
+            }
+        } else {
+            if total == over.1 && under.is_none() {
+                // Nothing left to refine away (the input alone is over the budget).
+                fallback = g;
+                break;
+            }
+            over = (edge, total);
+            fallback = g;
+        }
+        if let Some((_, _, best)) = &under {
+            if *best as f64 >= 0.85 * budget {
+                break;
+            }
+        }
+    }
+    Ok(under.map_or(fallback, |(_, g, _)| g))
 }
 
 /// The vertex path's edits, kept by kind so they are exported in a fixed order: materials
