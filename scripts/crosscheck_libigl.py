@@ -2,8 +2,9 @@
 """Cross-check retex's cotan Laplacian, mass matrices and principal curvatures against libigl.
 
 Runs the ignored Rust test `crosscheck_libigl_export` (tests/engine/geometry_core.rs), which writes
-V, F, L (triplets), both mass matrices and the curvatures of an icosphere and two shared assets
-(spot, koala_low_resolution) as .npy files, then compares them with libigl (PyPI `libigl`):
+V, F, L (triplets), both mass matrices and the curvatures of an icosphere and two real meshes
+(spot from tests/data, koala_low_resolution from the shared assets) as .npy files, then compares
+them with libigl (PyPI `libigl`):
 
 - L vs igl.cotmatrix: same sign convention (negative semi-definite, L_ij = (cot a + cot b)/2,
   L_ii = -sum_j L_ij). Tolerance: max |L - L_igl| <= 1e-9 * max |L_igl|.

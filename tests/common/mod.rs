@@ -1,9 +1,28 @@
-//! Shared test fixtures: where the shared assets live.
+//! Shared test fixtures: the test data shipped in `tests/data`, where the shared assets live,
+//! the glTF validator, loading and comparing models.
 #![allow(dead_code)]
 
 use std::path::PathBuf;
 
 pub mod planar_pattern;
+
+/// The small, freely licensed assets committed with the repository (`tests/data`, listed with
+/// their sources and licences in `tests/data/README.md`).
+pub fn test_data_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/data")
+}
+
+/// Path of a file under `tests/data` (the same relative path as in the shared assets); panics
+/// with a clear message when missing.
+pub fn test_data(relative: &str) -> PathBuf {
+    let p = test_data_dir().join(relative);
+    assert!(
+        p.exists(),
+        "test data {} not found (tests/data is part of the repository; see tests/data/README.md)",
+        p.display()
+    );
+    p
+}
 
 /// The shared asset folder: `$RETEX_SHARED_ASSETS`, else `../shared/assets` next to the crate.
 pub fn shared_assets_dir() -> PathBuf {
@@ -13,7 +32,9 @@ pub fn shared_assets_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/assets")
 }
 
-/// Path of a file under the shared asset folder; panics with a clear message when missing.
+/// Path of a file under the shared asset folder; panics with a clear message when missing. Only
+/// for tests marked `#[ignore = "needs the shared assets ..."]`: the default suite uses
+/// [`test_data`].
 pub fn shared_asset(relative: &str) -> PathBuf {
     let p = shared_assets_dir().join(relative);
     assert!(

@@ -43,7 +43,7 @@ fn constraints(json: &str) -> Constraints {
 
 #[test]
 fn a_constant_field_bakes_its_color_and_colors_vertices() {
-    let spot = load_path(&shared_asset(SPOT));
+    let spot = load_path(&test_data(SPOT));
     let c = constraints(r#"{"version": 1, "output": {"texture_size": 64}}"#);
     let color = [0.25, 0.5, 0.75, 1.0];
     let control = Control::new();
@@ -68,7 +68,7 @@ fn a_constant_field_bakes_its_color_and_colors_vertices() {
         }
     }
     // A primitive without UVs gets COLOR_0 on a refined copy.
-    let boxed = load_path(&shared_asset(BOX_COLORS));
+    let boxed = load_path(&test_data(BOX_COLORS));
     let (edits, report) =
         write_color_field(&boxed, &c, 500, &Constant(color), &Control::new()).unwrap();
     assert!(!edits.iter().any(|e| matches!(e, Edit::SetTexture { .. })));
@@ -92,7 +92,7 @@ fn a_constant_field_bakes_its_color_and_colors_vertices() {
 
 #[test]
 fn cancelling_during_the_bake_stops_it() {
-    let spot = load_path(&shared_asset(SPOT));
+    let spot = load_path(&test_data(SPOT));
     let c = constraints(r#"{"version": 1, "output": {"texture_size": 512}}"#);
     let control = Control::new();
     let field = Cancelling {

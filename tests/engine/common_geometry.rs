@@ -2,20 +2,12 @@
 //! writer for exporting results to the libigl cross-check (`scripts/crosscheck_libigl.py`).
 
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use retex::engine::geometry::curvature::{principal_curvatures, CurvatureParams};
 use retex::engine::geometry::laplacian::{cotan_laplacian, mass_matrix, LaplacianParams, MassKind};
 use retex::engine::mesh::primitives::{icosphere, jitter};
 use retex::engine::mesh::Surface;
-
-/// The shared asset folder: `$RETEX_SHARED_ASSETS`, else `../shared/assets` next to the crate.
-pub fn shared_assets_dir() -> PathBuf {
-    match std::env::var("RETEX_SHARED_ASSETS") {
-        Ok(dir) => PathBuf::from(dir),
-        Err(_) => Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/assets"),
-    }
-}
 
 /// Reads `v` and `f` records of an OBJ file (vertex order kept, polygons fan-triangulated,
 /// `v/vt/vn` and negative indices handled, no welding) into a surface.
@@ -133,25 +125,28 @@ pub fn mean_relative_error(got: &[f64], want: &[f64], min_dist: f64) -> f64 {
     sum / count as f64
 }
 
-/// Writes V, F, L triplets, both masses and curvatures of an icosphere and two shared assets (see
-/// `scripts/crosscheck_libigl.py`) into `$RETEX_CROSSCHECK_DIR` (default
-/// `target/crosscheck_libigl`).
+/// Writes V, F, L triplets, both masses and curvatures of an icosphere, Spot (`tests/data`) and
+/// the low-resolution koala (shared assets) (see `scripts/crosscheck_libigl.py`) into
+/// `$RETEX_CROSSCHECK_DIR` (default `target/crosscheck_libigl`).
 pub fn export_for_libigl() {
     let out = std::env::var("RETEX_CROSSCHECK_DIR")
         .map(std::path::PathBuf::from)
         .unwrap_or_else(|_| {
             std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/crosscheck_libigl")
         });
-    let assets = shared_assets_dir();
     let meshes = [
         ("icosphere", icosphere(1.0, 12)),
         (
             "spot",
-            read_obj(&assets.join("src_spot_keenan/spot_triangulated.obj")),
+            read_obj(&crate::common::test_data(
+                "src_spot_keenan/spot_triangulated.obj",
+            )),
         ),
         (
             "koala_low",
-            read_obj(&assets.join("perf_koala_odedstein/koala_low_resolution.obj")),
+            read_obj(&crate::common::shared_asset(
+                "perf_koala_odedstein/koala_low_resolution.obj",
+            )),
         ),
     ];
     for (name, s) in meshes {

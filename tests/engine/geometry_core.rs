@@ -304,7 +304,7 @@ fn heat_distance_on_a_plane_matches_euclidean() {
 
 #[test]
 fn heat_distance_agrees_with_fast_marching_on_a_real_mesh() {
-    let path = common_geometry::shared_assets_dir().join("src_spot_keenan/spot_triangulated.obj");
+    let path = crate::common::test_data("src_spot_keenan/spot_triangulated.obj");
     let s = common_geometry::read_obj(&path);
     let heat = HeatGeodesics::new(&s, &HeatParams::default(), &Control::new()).unwrap();
     let d = heat.distance(&[Source::Vertex(0)]).unwrap();

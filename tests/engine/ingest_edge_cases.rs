@@ -1,23 +1,44 @@
-//! Ingest on the shared edge-case and real assets, and on hand-built malicious inputs: every
-//! file either loads with the expected content or fails with the expected error variant, and
-//! nothing panics.
+//! Ingest on the edge-case assets (`tests/data`), on the shared edge-case and real assets
+//! (ignored by default), and on hand-built malicious inputs: every file either loads with the
+//! expected content or fails with the expected error variant, and nothing panics.
 
 use crate::common;
 
 use retex::engine::asset::glb::GlbError;
 use retex::engine::asset::*;
 
-fn load_path(rel: &str) -> Result<Asset, IngestError> {
-    let (main, blobs) = BlobSet::from_path(&common::shared_asset(rel)).expect("readable asset");
+fn load_file(path: &std::path::Path) -> Result<Asset, IngestError> {
+    let (main, blobs) = BlobSet::from_path(path).expect("readable asset");
     load(&main, &blobs, &IngestLimits::default())
+}
+
+/// Loads a file of `tests/data`.
+fn load_path(rel: &str) -> Result<Asset, IngestError> {
+    load_file(&common::test_data(rel))
+}
+
+/// Loads a file of the shared assets (only in ignored tests).
+fn load_shared(rel: &str) -> Result<Asset, IngestError> {
+    load_file(&common::shared_asset(rel))
 }
 
 fn ok(rel: &str) -> Asset {
     load_path(rel).unwrap_or_else(|e| panic!("{rel}: {e}"))
 }
 
+fn ok_shared(rel: &str) -> Asset {
+    load_shared(rel).unwrap_or_else(|e| panic!("{rel}: {e}"))
+}
+
 fn err(rel: &str) -> IngestError {
     match load_path(rel) {
+        Ok(_) => panic!("{rel} loaded but should fail"),
+        Err(e) => e,
+    }
+}
+
+fn err_shared(rel: &str) -> IngestError {
+    match load_shared(rel) {
         Ok(_) => panic!("{rel} loaded but should fail"),
         Err(e) => e,
     }
@@ -212,6 +233,7 @@ fn validator_suite_glb_errors_name_the_lie() {
 // Edge-case assets.
 
 #[test]
+#[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
 fn every_edge_asset_loads_or_fails_as_expected() {
     let expected_failures: &[(&str, &str)] = &[
         (
@@ -270,7 +292,7 @@ fn every_edge_asset_loads_or_fails_as_expected() {
             .iter()
             .find(|(r, _)| *r == rel)
             .map(|(_, k)| *k);
-        match (load_path(&rel), expected) {
+        match (load_shared(&rel), expected) {
             (Ok(a), None) => {
                 assert_consistent(&rel, &a);
                 assert!(!a.instances.is_empty(), "{rel}: no mesh instance");
@@ -284,16 +306,21 @@ fn every_edge_asset_loads_or_fails_as_expected() {
 
 #[test]
 fn draco_is_refused_by_name() {
-    for rel in [
-        "edge_draco_box_khronos/glTF-Draco/Box.gltf",
-        "edge_draco_cesium_man_khronos/glTF-Draco/CesiumMan.gltf",
-    ] {
-        let e = err(rel);
-        assert!(
-            matches!(&e, IngestError::UnsupportedExtension(n) if n == "KHR_draco_mesh_compression"),
-            "{e}"
-        );
-    }
+    let e = err("edge_draco_box_khronos/glTF-Draco/Box.gltf");
+    assert!(
+        matches!(&e, IngestError::UnsupportedExtension(n) if n == "KHR_draco_mesh_compression"),
+        "{e}"
+    );
+}
+
+#[test]
+#[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
+fn draco_cesium_man_is_refused_by_name() {
+    let e = err_shared("edge_draco_cesium_man_khronos/glTF-Draco/CesiumMan.gltf");
+    assert!(
+        matches!(&e, IngestError::UnsupportedExtension(n) if n == "KHR_draco_mesh_compression"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -389,8 +416,12 @@ fn texture_transform_is_read_into_texture_refs() {
     let all = by_name("All").transform.unwrap();
     assert_eq!((all.offset, all.scale), ([-0.2, -0.1], [1.5, 1.5]));
     assert_eq!(by_name("Correct").transform, None);
+}
 
-    let chair = ok("src_sheen_chair_khronos/glTF/SheenChair.gltf");
+#[test]
+#[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
+fn sheen_chair_requires_texture_transform_and_reads_it() {
+    let chair = ok_shared("src_sheen_chair_khronos/glTF/SheenChair.gltf");
     assert!(chair.json["extensionsRequired"]
         .as_array()
         .unwrap()
@@ -493,8 +524,9 @@ fn attributes_colors_quantization_and_legacy_materials() {
 // Real sources and targets.
 
 #[test]
+#[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
 fn real_sources_load_with_expected_counts() {
-    let spot = ok("src_spot_keenan/spot_textured_derived.glb");
+    let spot = ok_shared("src_spot_keenan/spot_textured_derived.glb");
     assert_eq!((vertices(&spot), triangles(&spot)), (3225, 5856));
     let tex = spot.materials[0].base_color_texture.unwrap();
     let img = &spot.images[spot.textures[tex.texture].image.unwrap()];
@@ -508,7 +540,7 @@ fn real_sources_load_with_expected_counts() {
         "src_fox_khronos/glTF/Fox.gltf",
         "src_fox_khronos/glTF-Binary/Fox.glb",
     ] {
-        let fox = ok(rel);
+        let fox = ok_shared(rel);
         assert_eq!((vertices(&fox), triangles(&fox)), (1728, 576), "{rel}");
         assert!(
             fox.json["meshes"][0]["primitives"][0]
@@ -520,7 +552,7 @@ fn real_sources_load_with_expected_counts() {
         assert_eq!(fox.primitives[0].triangles[1], [3, 4, 5]);
     }
 
-    let head = ok("src_lee_perry_smith_head/LeePerrySmith_textured_derived.gltf");
+    let head = ok_shared("src_lee_perry_smith_head/LeePerrySmith_textured_derived.gltf");
     assert_eq!((vertices(&head), triangles(&head)), (9279, 17684));
     let img = head.images.iter().find(|i| i.decoded.is_some()).unwrap();
     assert_eq!(
@@ -528,24 +560,26 @@ fn real_sources_load_with_expected_counts() {
         ("image/jpeg", 1024, 1024)
     );
 
-    let car = ok("perf_toy_car_khronos/glTF/ToyCar.gltf");
+    let car = ok_shared("perf_toy_car_khronos/glTF/ToyCar.gltf");
     assert_eq!(
         (vertices(&car), triangles(&car), car.primitives.len()),
         (77429, 108936, 3)
     );
     assert_consistent("toy car", &car);
 
-    let e = err("tgt_barramundi_fish_khronos_geometry/glTF/BarramundiFish.gltf");
+    let e = err_shared("tgt_barramundi_fish_khronos_geometry/glTF/BarramundiFish.gltf");
     assert!(
         matches!(&e, IngestError::MissingFile { name, .. } if name.ends_with(".png")),
         "{e}"
     );
-    let fish =
-        ok("tgt_barramundi_fish_khronos_geometry/glTF/BarramundiFish_geometry_only_derived.gltf");
+    let fish = ok_shared(
+        "tgt_barramundi_fish_khronos_geometry/glTF/BarramundiFish_geometry_only_derived.gltf",
+    );
     assert_eq!((vertices(&fish), triangles(&fish)), (2188, 3864));
 }
 
 #[test]
+#[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
 fn derived_target_glbs_load() {
     let expected = [
         ("tgt_spot_remeshed_odedstein/spot_derived.glb", 11533, 23062),
@@ -576,11 +610,11 @@ fn derived_target_glbs_load() {
         ),
     ];
     for (rel, v, t) in expected {
-        let a = ok(rel);
+        let a = ok_shared(rel);
         assert_eq!((vertices(&a), triangles(&a)), (v, t), "{rel}");
         assert_consistent(rel, &a);
     }
-    let sofa = ok("tgt_glam_velvet_sofa_khronos/glTF-Binary/GlamVelvetSofa.glb");
+    let sofa = ok_shared("tgt_glam_velvet_sofa_khronos/glTF-Binary/GlamVelvetSofa.glb");
     assert_eq!((vertices(&sofa), triangles(&sofa)), (3118, 4196));
 }
 

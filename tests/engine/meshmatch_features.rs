@@ -589,7 +589,7 @@ fn affinities_and_features_errors() {
 /// affinities equal the original's within 6e-8.
 #[test]
 fn spot_features_finite() {
-    let asset = common::load_path(&common::shared_asset(
+    let asset = common::load_path(&common::test_data(
         "src_spot_keenan/spot_textured_derived.glb",
     ));
     let s = build_surface(&asset, &WeldParams::default()).unwrap();

@@ -91,14 +91,22 @@ fn wavy_grid(n: u32) -> Surface {
     Surface::from_triangles(p, f)
 }
 
-/// The welded surface of a shared asset.
-fn asset_surface(relative: &str) -> Surface {
-    let asset = common::load_path(&common::shared_asset(relative));
+/// The welded surface of a model file.
+fn surface_of(path: &std::path::Path) -> Surface {
+    let asset = common::load_path(path);
     build_surface(&asset, &WeldParams::default()).expect("surface")
 }
 
+/// The welded surface of a shared asset (benchmarks only).
+fn asset_surface(relative: &str) -> Surface {
+    surface_of(&common::shared_asset(relative))
+}
+
+/// The remeshed Spot (11,533 vertices), from `tests/data`.
 fn spot() -> Surface {
-    asset_surface("tgt_spot_remeshed_odedstein/spot_derived.glb")
+    surface_of(&common::test_data(
+        "tgt_spot_remeshed_odedstein/spot_derived.glb",
+    ))
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -111,10 +111,10 @@ fn every_view_covers_a_sane_share_and_leaves_the_corners_alone() {
         size: 96,
         ..Default::default()
     };
-    let spot = load_path(&shared_asset(SPOT));
+    let spot = load_path(&test_data(SPOT));
     let img = render_turntable(&spot, &params).unwrap();
     assert_framed(&img, 6, 0.10, 0.70, "spot");
-    let boxed = load_path(&shared_asset(BOX_COLORS));
+    let boxed = load_path(&test_data(BOX_COLORS));
     let img = render_turntable(&boxed, &params).unwrap();
     assert_framed(&img, 6, 0.20, 0.70, "vertex-colored box");
     // A single view works too, and the output is the same on a second run.
@@ -208,7 +208,7 @@ fn spot_surface_mean(spot: &Asset) -> [f64; 3] {
 
 #[test]
 fn spot_shows_its_texture() {
-    let spot = load_path(&shared_asset(SPOT));
+    let spot = load_path(&test_data(SPOT));
     let params = PreviewParams {
         views: 8,
         size: 256,
@@ -254,7 +254,7 @@ fn spot_shows_its_texture() {
 
 #[test]
 fn bad_params_and_empty_assets_are_errors() {
-    let spot = load_path(&shared_asset(SPOT));
+    let spot = load_path(&test_data(SPOT));
     let bad = [
         PreviewParams {
             views: 0,
@@ -317,7 +317,7 @@ fn cli_writes_a_png_strip() {
     let _ = std::fs::remove_file(&out);
     let status = std::process::Command::new(env!("CARGO_BIN_EXE_retex"))
         .arg("preview")
-        .arg(shared_asset(SPOT))
+        .arg(test_data(SPOT))
         .arg("--out")
         .arg(&out)
         .args(["--views", "5", "--size", "64", "--quiet"])
@@ -328,7 +328,7 @@ fn cli_writes_a_png_strip() {
     assert_eq!((img.width(), img.height()), (320, 64));
     let bad = std::process::Command::new(env!("CARGO_BIN_EXE_retex"))
         .arg("preview")
-        .arg(shared_asset(SPOT))
+        .arg(test_data(SPOT))
         .arg("--out")
         .arg(dir.join("never.png"))
         .args(["--size", "4"])

@@ -1,6 +1,6 @@
-//! The `project` method end to end on the shared assets: identity, round trip between two
-//! tessellations, alignment from correspondences, determinism, coverage bookkeeping, and the
-//! Khronos validator on every output.
+//! The `project` method end to end on Spot and its remeshes (`tests/data`): identity, round trip
+//! between two tessellations, alignment from correspondences, determinism, coverage bookkeeping,
+//! and the Khronos validator on every output.
 
 use crate::common::glb;
 
@@ -81,7 +81,7 @@ fn coverage(asset: &Asset, size: u32) -> Vec<bool> {
 
 fn spot_psnr(out: &TransferOutput, name: &str) -> f64 {
     assert_validator_clean(&out.model, name);
-    let spot = load_path(&shared_asset(SPOT));
+    let spot = load_path(&test_data(SPOT));
     let result = load_bytes(&out.model, "out.glb");
     let (w, h, expected) = base_color(&spot, 0);
     let (w2, h2, got) = base_color(&result, 0);
@@ -91,7 +91,7 @@ fn spot_psnr(out: &TransferOutput, name: &str) -> f64 {
 
 #[test]
 fn identity_on_spot_reproduces_the_texture() {
-    let spot = blobs_of(&shared_asset(SPOT));
+    let spot = blobs_of(&test_data(SPOT));
     let out = run(
         &spot,
         &spot,
@@ -104,7 +104,7 @@ fn identity_on_spot_reproduces_the_texture() {
 
 #[test]
 fn coverage_report_adds_up() {
-    let spot = blobs_of(&shared_asset(SPOT));
+    let spot = blobs_of(&test_data(SPOT));
     let out = run(
         &spot,
         &spot,
@@ -169,14 +169,14 @@ fn texels_where_surfaces_agree(
 /// A → B → A, where B has no UVs (so B carries COLOR_0 on a refined copy) and A is baked back
 /// from B's vertex colors. Returns (PSNR over the texels where the surfaces agree, kept, covered).
 fn round_trip(
-    a: &str,
-    b: &str,
+    a: &std::path::Path,
+    b: &std::path::Path,
     params: serde_json::Value,
     band: f32,
     name: &str,
 ) -> (f64, usize, usize) {
-    let src = blobs_of(&shared_asset(a));
-    let tgt = blobs_of(&shared_asset(b));
+    let src = blobs_of(a);
+    let tgt = blobs_of(b);
     let mut forward = params.clone();
     forward["vertex_color_samples"] = json!(400000);
     let ab = run(
@@ -189,7 +189,7 @@ fn round_trip(
     let vc = &ab.report.method_report["vertex_colors"][0];
     assert_eq!(vc["refined"], true, "{vc}");
     assert!(vc["vertices"].as_u64().unwrap() >= 300_000, "{vc}");
-    let a_asset = load_path(&shared_asset(a));
+    let a_asset = load_path(a);
     let (w, _, expected) = base_color(&a_asset, 0);
     let mid = blobs_from_bytes("b.glb", ab.model.clone());
     let ba = run(
@@ -200,8 +200,7 @@ fn round_trip(
     .unwrap();
     assert_validator_clean(&ba.model, &format!("{name}_back.glb"));
     let (_, _, got) = base_color(&load_bytes(&ba.model, "back.glb"), 0);
-    let (mask, covered, kept) =
-        texels_where_surfaces_agree(&a_asset, &load_path(&shared_asset(b)), w, band);
+    let (mask, covered, kept) = texels_where_surfaces_agree(&a_asset, &load_path(b), w, band);
     let psnr = psnr_masked(&expected, &got, &mask);
     let psnr_all = psnr_masked(&expected, &got, &coverage(&a_asset, w));
     eprintln!("{name}: {psnr:.2} dB where the surfaces agree ({kept}/{covered} texels), {psnr_all:.2} dB everywhere");
@@ -211,10 +210,11 @@ fn round_trip(
 /// Blub and its low-resolution remesh agree to 0.03 % of the diagonal on average (INDEX.md: the
 /// cleanest ground-truth pair), so the round trip must reproduce the 2048² texture.
 #[test]
+#[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
 fn round_trip_through_a_remeshed_copy_keeps_the_texture() {
     let (psnr, kept, covered) = round_trip(
-        "src_blub_keenan/blub_textured_derived.glb",
-        "tgt_fish_remeshed_odedstein/fish_low_resolution_derived.glb",
+        &shared_asset("src_blub_keenan/blub_textured_derived.glb"),
+        &shared_asset("tgt_fish_remeshed_odedstein/fish_low_resolution_derived.glb"),
         json!({}),
         1.0,
         "roundtrip_blub",
@@ -230,8 +230,8 @@ fn round_trip_through_a_remeshed_copy_keeps_the_texture() {
 #[test]
 fn round_trip_on_spot_with_normal_gating_stays_close() {
     let (psnr, kept, covered) = round_trip(
-        SPOT,
-        SPOT_REMESHED,
+        &test_data(SPOT),
+        &test_data(SPOT_REMESHED),
         json!({"max_normal_angle": 30.0}),
         0.02,
         "roundtrip_spot",
@@ -254,7 +254,7 @@ fn unglb(bytes: &[u8]) -> (serde_json::Value, Vec<u8>) {
 
 #[test]
 fn alignment_from_four_correspondences_transfers_like_the_unmoved_case() {
-    let spot_path = shared_asset(SPOT);
+    let spot_path = test_data(SPOT);
     let spot_bytes = std::fs::read(&spot_path).unwrap();
     let spot_asset = load_path(&spot_path);
     // Target: Spot under a node with scale 2.5, a rotation of 1.1 rad about (0.3, 1, 0.2), and a
@@ -358,8 +358,8 @@ fn alignment_from_four_correspondences_transfers_like_the_unmoved_case() {
 
 #[test]
 fn output_is_byte_identical_across_runs_and_thread_counts() {
-    let spot = blobs_of(&shared_asset(SPOT));
-    let remeshed = blobs_of(&shared_asset(
+    let spot = blobs_of(&test_data(SPOT));
+    let remeshed = blobs_of(&test_data(
         "tgt_spot_remeshed_odedstein/spot_low_resolution_derived.glb",
     ));
     let c = constraints(
@@ -382,7 +382,7 @@ fn output_is_byte_identical_across_runs_and_thread_counts() {
 
 #[test]
 fn gltf_output_with_embedded_buffers_validates() {
-    let spot = blobs_of(&shared_asset(SPOT));
+    let spot = blobs_of(&test_data(SPOT));
     let out = run(
         &spot,
         &spot,
@@ -398,8 +398,8 @@ fn gltf_output_with_embedded_buffers_validates() {
 
 #[test]
 fn gating_by_distance_leaves_far_texels_unmatched() {
-    let spot = blobs_of(&shared_asset(SPOT));
-    let sphere = blobs_of(&shared_asset(
+    let spot = blobs_of(&test_data(SPOT));
+    let sphere = blobs_of(&test_data(
         "tgt_primitives_odedstein_sphere/sphere_derived.glb",
     ));
     let out = run(
@@ -417,7 +417,7 @@ fn gating_by_distance_leaves_far_texels_unmatched() {
 
 #[test]
 fn bad_requests_fail_with_clear_errors() {
-    let spot = blobs_of(&shared_asset(SPOT));
+    let spot = blobs_of(&test_data(SPOT));
     let e = run(
         &spot,
         &spot,

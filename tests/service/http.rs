@@ -1,7 +1,7 @@
 //! The HTTP service end to end over a real socket (port 0): submit with curl-style multipart
-//! bodies built from the shared assets, follow by polling and by SSE, download and validate
-//! with the Khronos validator; cancellation; idempotency; ETag/304; Range; pagination; auth;
-//! CORS; queue-full 503; and that the engine runs on the runner's threads only.
+//! bodies built from Spot and Fox (`tests/data`), follow by polling and by SSE, download and
+//! validate with the Khronos validator; cancellation; idempotency; ETag/304; Range; pagination;
+//! auth; CORS; queue-full 503; and that the engine runs on the runner's threads only.
 
 use crate::common;
 
@@ -144,7 +144,7 @@ fn read_events(url: &str, last_event_id: Option<&str>) -> Vec<(String, u64, serd
 #[test]
 fn fox_multi_file_gltf_followed_through_sse() {
     let s = TestServer::start(|_| {});
-    let fox = common::shared_asset("src_fox_khronos/glTF/Fox.gltf");
+    let fox = common::test_data("src_fox_khronos/glTF/Fox.gltf");
     let mut parts = model_parts_from(&fox, "source");
     parts.extend(model_parts_from(&fox, "target"));
     parts.push(("constraints", "c.json", constraints(256)));
@@ -176,7 +176,7 @@ fn fox_multi_file_gltf_followed_through_sse() {
 #[test]
 fn fox_as_a_zip_is_accepted() {
     let s = TestServer::start(|_| {});
-    let fox = common::shared_asset("src_fox_khronos/glTF/Fox.gltf");
+    let fox = common::test_data("src_fox_khronos/glTF/Fox.gltf");
     let mut zip_bytes = std::io::Cursor::new(Vec::new());
     {
         let mut z = zip::ZipWriter::new(&mut zip_bytes);
@@ -205,7 +205,7 @@ fn fox_as_a_zip_is_accepted() {
 #[test]
 fn cancel_enqueued_and_processing_jobs() {
     let s = TestServer::start(|c| c.workers = 1);
-    let slow = submit(&s.base, &toycar_parts(8192), &[]);
+    let slow = submit(&s.base, &spot_parts(8192), &[]);
     assert_eq!(slow.status, 202, "{}", String::from_utf8_lossy(&slow.body));
     let slow_id = id_of(&slow);
     wait_for(&s.base, &slow_id, Duration::from_secs(60), |st| {
@@ -222,7 +222,8 @@ fn cancel_enqueued_and_processing_jobs() {
     );
     assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
     assert_eq!(r.json()["status"], "canceled");
-    // Processing: stops within about a second.
+    // Processing: stops within about a second (asserted with a generous bound: the machine may
+    // be busy with other tests).
     std::thread::sleep(Duration::from_millis(500));
     let t = std::time::Instant::now();
     let r = request(
@@ -235,7 +236,7 @@ fn cancel_enqueued_and_processing_jobs() {
     let doc = wait_for(&s.base, &slow_id, Duration::from_secs(10), terminal);
     assert_eq!(doc["status"], "canceled", "{doc}");
     assert!(
-        t.elapsed() < Duration::from_secs(3),
+        t.elapsed() < Duration::from_secs(5),
         "cancel took {:?}",
         t.elapsed()
     );
@@ -260,7 +261,7 @@ fn queue_full_answers_503_and_delete_of_running_job_is_409() {
         c.workers = 1;
         c.queue_len = 1;
     });
-    let slow = submit(&s.base, &toycar_parts(8192), &[]);
+    let slow = submit(&s.base, &spot_parts(8192), &[]);
     let slow_id = id_of(&slow);
     wait_for(&s.base, &slow_id, Duration::from_secs(60), |st| {
         st != "enqueued"

@@ -59,7 +59,7 @@ fn kill_9_mid_job_then_restart_loses_and_duplicates_nothing() {
     let (mut child, base) = spawn_server(data.path());
     let mut ids = Vec::new();
     for size in [8192, 512, 256, 128] {
-        let r = submit(&base, &toycar_parts(size), &[]);
+        let r = submit(&base, &spot_parts(size), &[]);
         assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
         ids.push(r.json()["id"].as_str().unwrap().to_string());
     }
@@ -102,7 +102,7 @@ fn kill_9_mid_job_then_restart_loses_and_duplicates_nothing() {
     assert_eq!(listed, expected, "no job lost or duplicated");
     common::assert_validator_clean(
         &get(&format!("{base}/v1/jobs/{}/result", ids[3])).body,
-        "service_recovery_toycar.glb",
+        "service_recovery_spot.glb",
     );
 
     // SIGTERM: a clean exit within the deadline.

@@ -3,7 +3,7 @@
 //! way curl sends them, and polling helpers.
 #![allow(dead_code)]
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
@@ -156,12 +156,14 @@ pub fn constraints(texture_size: u32) -> Vec<u8> {
         .into_bytes()
 }
 
+/// The bytes of a file of `tests/data`.
 pub fn asset(relative: &str) -> Vec<u8> {
-    let p = crate::common::shared_asset(relative);
+    let p = crate::common::test_data(relative);
     std::fs::read(&p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
 }
 
-/// Spot onto itself: a GLB source and target.
+/// Spot onto itself: a GLB source and target. At texture size 8192 the job runs for seconds
+/// (about 15 s on the 2-core machine): the slow job of the cancel, queue and recovery tests.
 pub fn spot_parts(texture_size: u32) -> Vec<Part<'static>> {
     let spot = asset("src_spot_keenan/spot_textured_derived.glb");
     vec![
@@ -169,40 +171,6 @@ pub fn spot_parts(texture_size: u32) -> Vec<Part<'static>> {
         ("target", "spot.glb", spot),
         ("constraints", "constraints.json", constraints(texture_size)),
     ]
-}
-
-/// ToyCar onto itself, a multi-file .gltf with large textures (slow at big texture sizes).
-pub fn toycar_parts(texture_size: u32) -> Vec<Part<'static>> {
-    let dir = crate::common::shared_assets_dir();
-    let mut found = None;
-    for entry in walk(&dir) {
-        if entry.file_name().is_some_and(|n| n == "ToyCar.gltf") {
-            found = Some(entry);
-            break;
-        }
-    }
-    let main = found.expect("ToyCar.gltf in the shared assets");
-    model_parts_from(&main, "source")
-        .into_iter()
-        .chain(model_parts_from(&main, "target"))
-        .chain([("constraints", "constraints.json", constraints(texture_size))])
-        .collect()
-}
-
-fn walk(dir: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    if let Ok(rd) = std::fs::read_dir(dir) {
-        for e in rd.flatten() {
-            let p = e.path();
-            if p.is_dir() {
-                out.extend(walk(&p));
-            } else {
-                out.push(p);
-            }
-        }
-    }
-    out.sort();
-    out
 }
 
 /// The parts of a .gltf and the files its URIs name, as curl would send them.
