@@ -129,16 +129,6 @@ fn malformed_uploads_get_4xx_problems_never_5xx() {
             None,
         ),
         (
-            "missing constraints",
-            spot_parts(64)
-                .into_iter()
-                .filter(|p| p.0 != "constraints")
-                .collect(),
-            400,
-            "constraints",
-            None,
-        ),
-        (
             "bad json constraints",
             with(2, ("constraints", "c.json", b"{not json".to_vec())),
             422,

@@ -254,8 +254,11 @@ pub async fn read_upload(
     if target.is_empty() {
         return Err(missing("target"));
     }
-    let constraints_path = constraints.ok_or_else(|| missing("constraints"))?;
-    let constraints_bytes = std::fs::read(&constraints_path).map_err(ApiError::internal)?;
+    // Without a constraints part the job runs with the defaults (method project).
+    let constraints_bytes = match constraints {
+        Some(path) => std::fs::read(&path).map_err(ApiError::internal)?,
+        None => br#"{"version":1}"#.to_vec(),
+    };
     let parsed =
         Constraints::from_json(&constraints_bytes).map_err(|e| ApiError::constraints(&e))?;
     if parsed.output.texture_size > config.max_texture_size {
