@@ -5,7 +5,7 @@
 
 use std::io::Write;
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use clap::Args;
 use retex::service::config::ServeConfig;
@@ -64,12 +64,26 @@ pub struct ServeArgs {
     pub log_json: bool,
 }
 
-/// Builds the configuration from file, environment and flags.
-pub fn config(args: &ServeArgs) -> Result<ServeConfig, String> {
+/// Builds the configuration from file, environment and flags; also says where `data_dir` came
+/// from (for the error when it cannot be used).
+pub fn config(args: &ServeArgs) -> Result<(ServeConfig, String), String> {
+    let mut origin = "the default data_dir (./retex-data, relative to the current folder)".into();
     let mut c = match &args.config {
-        Some(path) => ServeConfig::from_file(path).map_err(|e| e.to_string())?,
+        Some(path) => {
+            let c = ServeConfig::from_file(path).map_err(|e| e.to_string())?;
+            if c.data_dir != ServeConfig::default().data_dir {
+                origin = format!("data_dir in the config file {}", path.display());
+            }
+            c
+        }
         None => ServeConfig::default(),
     };
+    if std::env::var_os("RETEX_DATA_DIR").is_some() {
+        origin = "the environment variable RETEX_DATA_DIR".into();
+    }
+    if args.data_dir.is_some() {
+        origin = "the flag --data-dir".into();
+    }
     c.apply_env(|k| std::env::var(k).ok())
         .map_err(|e| e.to_string())?;
     macro_rules! flag {
@@ -97,7 +111,24 @@ pub fn config(args: &ServeArgs) -> Result<ServeConfig, String> {
     }
     c.log_json |= args.log_json;
     c.validate().map_err(|e| e.to_string())?;
-    Ok(c)
+    Ok((c, origin))
+}
+
+/// Creates the data directory and checks that a file can be created in it, naming the setting
+/// the path came from when it cannot (a config file written for a container, e.g.
+/// `deploy/retex.example.toml` with `/var/lib/retex`, fails for a non-root user).
+fn check_data_dir(dir: &Path, origin: &str) -> Result<(), String> {
+    let fail = |e: std::io::Error| {
+        format!(
+            "data dir {}: {e} (set by {origin}; choose another with --data-dir or RETEX_DATA_DIR)",
+            dir.display()
+        )
+    };
+    std::fs::create_dir_all(dir).map_err(fail)?;
+    let probe = dir.join(format!(".retex-write-check-{}", std::process::id()));
+    std::fs::write(&probe, b"").map_err(fail)?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
 }
 
 fn init_tracing(json: bool) {
@@ -115,7 +146,8 @@ fn init_tracing(json: bool) {
 
 /// Runs the server until SIGTERM/SIGINT.
 pub fn run(args: &ServeArgs) -> Result<(), String> {
-    let config = config(args)?;
+    let (config, data_dir_origin) = config(args)?;
+    check_data_dir(&config.data_dir, &data_dir_origin)?;
     init_tracing(config.log_json);
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()

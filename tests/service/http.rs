@@ -515,3 +515,19 @@ fn meshmatch_job_serves_its_result_and_nnf() {
             .unwrap()
     );
 }
+
+#[test]
+fn constraints_part_is_optional_and_defaults_to_version_1() {
+    let s = TestServer::start(|_| {});
+    let parts: Vec<_> = spot_parts(64)
+        .into_iter()
+        .filter(|p| p.0 != "constraints")
+        .collect();
+    let r = submit(&s.base, &parts, &[]);
+    assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+    let id = id_of(&r);
+    let doc = wait_for(&s.base, &id, Duration::from_secs(120), terminal);
+    assert_eq!(doc["status"], "succeeded", "{doc}");
+    let report = get(&format!("{}/v1/jobs/{id}/artifacts/report.json", s.base)).json();
+    assert_eq!(report["method"], "project", "{report}");
+}

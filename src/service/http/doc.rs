@@ -209,9 +209,10 @@ pub struct SubmitForm {
     /// The target, in the same forms.
     #[schema(value_type = Vec<String>, format = Binary)]
     target: Vec<Vec<u8>>,
-    /// Constraints JSON v1 (`api/constraints.schema.json`).
-    #[schema(value_type = String, format = Binary)]
-    constraints: Vec<u8>,
+    /// Constraints JSON v1 (`api/constraints.schema.json`). Optional: without it the job runs
+    /// with `{"version":1}` (method `project`, every default).
+    #[schema(value_type = Option<String>, format = Binary)]
+    constraints: Option<Vec<u8>>,
     /// Optional pattern image (for the `pattern` method).
     #[schema(value_type = Option<String>, format = Binary)]
     pattern: Option<Vec<u8>>,
