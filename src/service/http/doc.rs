@@ -203,17 +203,22 @@ pub struct JobEventDoc {
 #[allow(dead_code)]
 pub struct SubmitForm {
     /// The textured source: one GLB, or a .gltf plus its files as further `source` parts
-    /// (each named by its filename), or one zip of them.
-    #[schema(value_type = Vec<String>, format = Binary)]
-    source: Vec<Vec<u8>>,
+    /// (each named by its filename), or one zip of them. Required by the methods that read a
+    /// source (`project`, `meshmatch`): a missing required part is a 400 naming it; a part the
+    /// method does not read is ignored with a warning in the report.
+    #[schema(value_type = Option<Vec<String>>, format = Binary)]
+    source: Option<Vec<Vec<u8>>>,
     /// The target, in the same forms.
     #[schema(value_type = Vec<String>, format = Binary)]
     target: Vec<Vec<u8>>,
+    /// A smooth base of the source, in the same forms, for methods that read one.
+    #[schema(value_type = Option<Vec<String>>, format = Binary)]
+    source_base: Option<Vec<Vec<u8>>>,
     /// Constraints JSON v1 (`api/constraints.schema.json`). Optional: without it the job runs
     /// with `{"version":1}` (method `project`, every default).
     #[schema(value_type = Option<String>, format = Binary)]
     constraints: Option<Vec<u8>>,
-    /// Optional pattern image (for the `pattern` method).
+    /// A pattern image (PNG or JPEG), for methods that read one.
     #[schema(value_type = Option<String>, format = Binary)]
     pattern: Option<Vec<u8>>,
 }
