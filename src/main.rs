@@ -1,9 +1,8 @@
 //! `retex` command line: `serve` runs the HTTP job service, `transfer` runs exactly what a service job runs, `inspect` describes a
 //! model and the problems found in it, `preview` renders a model's base color from several sides, `bench` measures the pipeline on the shared assets.
 
-mod cli;
-
 use clap::{Parser, Subcommand};
+use retex::cli;
 use std::path::PathBuf;
 use std::process::ExitCode;
 

@@ -4,6 +4,7 @@
 
 mod common;
 
+use common::planar_pattern;
 use common::*;
 use std::process::Command;
 
@@ -192,4 +193,61 @@ fn a_model_that_is_not_gltf_is_named() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("is a Wavefront OBJ file, not glTF"), "{err}");
     assert!(err.contains("obj2gltf"), "{err}");
+}
+
+#[test]
+fn a_method_registered_in_a_test_runs_through_the_cli() {
+    use retex::cli::transfer::{run_with, Args};
+    use retex::engine::methods::Registry;
+    let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/test-outputs/cli");
+    std::fs::create_dir_all(&dir).unwrap();
+    let jpeg = planar_pattern::small_jpeg();
+    let pattern = dir.join("tiles.jpg");
+    std::fs::write(&pattern, &jpeg).unwrap();
+    let constraints = dir.join("pattern.json");
+    std::fs::write(&constraints, br#"{"version": 1, "method": "pattern"}"#).unwrap();
+    let spot = test_data("src_spot_keenan/spot_textured_derived.glb");
+    let out = dir.join("pattern_on_spot.glb");
+    let artifacts = dir.join("pattern_artifacts");
+    let registry = Registry::builtin().with(&planar_pattern::PLANAR_PATTERN);
+    run_with(
+        &registry,
+        &Args {
+            source: None,
+            target: spot.clone(),
+            source_base: None,
+            pattern: Some(pattern.clone()),
+            constraints: Some(constraints.clone()),
+            method: None,
+            out: out.clone(),
+            artifacts: Some(artifacts.clone()),
+            quiet: true,
+        },
+    )
+    .unwrap();
+    let glb = std::fs::read(&out).unwrap();
+    assert_validator_clean(&glb, "cli_pattern_on_spot.glb");
+    let back = load_bytes(&glb, "out.glb");
+    assert_eq!(
+        back.images.last().unwrap().bytes.as_slice(),
+        jpeg.as_slice()
+    );
+    assert!(artifacts.join("planar.txt").exists());
+    assert!(artifacts.join("report.json").exists());
+    // The shipped binary has only the built-in methods: the same job is a clear error.
+    let run = retex()
+        .args(["transfer", "--quiet", "--method", "pattern", "--target"])
+        .arg(&spot)
+        .arg("--pattern")
+        .arg(&pattern)
+        .arg("--out")
+        .arg(dir.join("refused.glb"))
+        .output()
+        .unwrap();
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        err.contains("not implemented yet; available: project, meshmatch"),
+        "{err}"
+    );
 }

@@ -1,4 +1,4 @@
-//! Subcommands of the `retex` binary.
+//! Subcommands of the `retex` binary (`src/main.rs` parses the arguments and calls these).
 
 pub mod bench;
 pub mod bench_meshmatch;

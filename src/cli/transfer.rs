@@ -8,7 +8,8 @@ use indicatif::{ProgressBar, ProgressStyle};
 use retex::engine::asset::constraints::{Constraints, MethodId, OutputFormat};
 use retex::engine::asset::BlobSet;
 use retex::engine::control::Control;
-use retex::engine::pipeline::{transfer, ImageInput, ModelInput, TransferInput};
+use retex::engine::methods::Registry;
+use retex::engine::pipeline::{transfer_with, ImageInput, ModelInput, TransferInput};
 
 /// Arguments of `retex transfer`.
 pub struct Args {
@@ -27,8 +28,14 @@ fn read_model(path: &Path) -> Result<(String, BlobSet), String> {
     BlobSet::from_path(path).map_err(|e| format!("{}: {e}", path.display()))
 }
 
-/// Runs the command.
+/// Runs the command with the built-in methods.
 pub fn run(args: &Args) -> Result<(), String> {
+    run_with(&Registry::builtin(), args)
+}
+
+/// Runs the command with the methods of `registry` (what `run` does, for tests that register a
+/// method of their own).
+pub fn run_with(registry: &Registry, args: &Args) -> Result<(), String> {
     // Fail on an unwritable output before the (possibly long) transfer, not after it.
     super::check_output(&args.out, &["glb", "gltf"])?;
     if let Some(dir) = &args.artifacts {
@@ -95,7 +102,7 @@ pub fn run(args: &Args) -> Result<(), String> {
         input = input.with_pattern(ImageInput { name, bytes });
     }
     let result = std::thread::scope(|scope| {
-        let worker = scope.spawn(|| transfer(&input, &control));
+        let worker = scope.spawn(|| transfer_with(registry, &input, &control));
         while !worker.is_finished() {
             let p = control.progress();
             bar.set_position((p.fraction * 1000.0) as u64);
