@@ -487,3 +487,46 @@ fn the_color_0_fallback_keeps_to_its_vertex_budget() {
         assert_eq!(back.primitives[0].positions.len(), written);
     }
 }
+
+#[test]
+fn meshmatch_progress_never_goes_backwards_and_reaches_one_at_the_end() {
+    let (bytes, _) = spot();
+    let mut blobs = BlobSet::new();
+    blobs.insert("spot.glb", bytes);
+    let m = ModelInput {
+        main: "spot.glb",
+        blobs: &blobs,
+    };
+    let c = Constraints::from_json(
+        br#"{"version": 1, "method": "meshmatch", "output": {"texture_size": 128},
+             "params": {"samples": 2048, "write_nnf": false}}"#,
+    )
+    .unwrap();
+    let input = TransferInput::pair(m, m, c);
+    let control = Control::new();
+    let mut seen = Vec::new();
+    let out = std::thread::scope(|s| {
+        let worker = s.spawn(|| transfer(&input, &control));
+        while !worker.is_finished() {
+            let p = control.progress();
+            seen.push((p.fraction, p.stage));
+            std::thread::sleep(std::time::Duration::from_millis(2));
+        }
+        worker.join().unwrap()
+    });
+    out.unwrap();
+    assert!(seen.len() > 20, "only {} polls", seen.len());
+    for w in seen.windows(2) {
+        assert!(
+            w[1].0 >= w[0].0,
+            "progress went back: {:?} -> {:?}",
+            w[0],
+            w[1]
+        );
+    }
+    assert!(seen.iter().all(|(f, _)| *f < 1.0), "1.0 before the end");
+    // The levels move the fraction through most of the range, not in one jump at the end.
+    let mid = seen.iter().filter(|(f, _)| *f > 0.2 && *f < 0.9).count();
+    assert!(mid > 5, "{mid} polls between 20% and 90%: {seen:?}");
+    assert_eq!(control.progress().fraction, 1.0);
+}
