@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Cross-check retex's cotan Laplacian, mass matrices and principal curvatures against libigl.
 
-Runs the ignored Rust test `export_for_libigl_crosscheck` (tests/geometry_core.rs), which writes
+Runs the ignored Rust test `crosscheck_libigl_export` (tests/engine/geometry_core.rs), which writes
 V, F, L (triplets), both mass matrices and the curvatures of an icosphere and two shared assets
 (spot, koala_low_resolution) as .npy files, then compares them with libigl (PyPI `libigl`):
 
@@ -41,8 +41,8 @@ MESHES = ["icosphere", "spot", "koala_low"]
 
 def export():
     extra = shlex.split(os.environ.get("RETEX_CROSSCHECK_CARGO_ARGS", ""))
-    cmd = ["cargo", "test", "--release", *extra, "--test", "geometry_core",
-           "export_for_libigl_crosscheck", "--", "--ignored", "--exact"]
+    cmd = ["cargo", "test", "--release", *extra, "--test", "engine",
+           "geometry_core::crosscheck_libigl_export", "--", "--ignored", "--exact"]
     env = dict(os.environ, RETEX_CROSSCHECK_DIR=OUT)
     subprocess.run(cmd, cwd=ROOT, env=env, check=True)
 

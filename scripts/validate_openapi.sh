@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Validates api/openapi.yaml with the PyPI openapi-spec-validator (in a throwaway venv).
-# The Rust test tests/service_openapi.rs checks that the file matches the code.
+# The Rust test tests/service/openapi.rs checks that the file matches the code.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 venv="${TMPDIR:-/tmp}/retex-oasv"

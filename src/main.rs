@@ -22,12 +22,19 @@ struct Cli {
 enum Command {
     /// Transfer appearance from SOURCE onto TARGET and write the textured target.
     Transfer {
-        /// Textured source model (.glb, or .gltf with its files beside it).
+        /// Textured source model (.glb, or .gltf with its files beside it); required by every
+        /// method that reads a source.
         #[arg(long)]
-        source: PathBuf,
+        source: Option<PathBuf>,
         /// Target model.
         #[arg(long)]
         target: PathBuf,
+        /// Smooth base of the source, for methods that read one.
+        #[arg(long)]
+        source_base: Option<PathBuf>,
+        /// Pattern image (PNG or JPEG), for methods that read one.
+        #[arg(long)]
+        pattern: Option<PathBuf>,
         /// Constraints JSON v1 (method, correspondences, output options, params).
         #[arg(long)]
         constraints: Option<PathBuf>,
@@ -98,6 +105,8 @@ fn main() -> ExitCode {
         Command::Transfer {
             source,
             target,
+            source_base,
+            pattern,
             constraints,
             method,
             out,
@@ -106,6 +115,8 @@ fn main() -> ExitCode {
         } => cli::transfer::run(&cli::transfer::Args {
             source,
             target,
+            source_base,
+            pattern,
             constraints,
             method,
             out,

@@ -43,43 +43,31 @@ fn transfer_case(
         None => stages.push((name.to_string(), vec![ms])),
     };
     for _ in 0..runs {
-        let ti = TransferInput {
-            source: ModelInput {
+        let ti = TransferInput::pair(
+            ModelInput {
                 main: &sm,
                 blobs: &sb,
             },
-            target: ModelInput {
+            ModelInput {
                 main: &tm,
                 blobs: &tb,
             },
-            constraints: Constraints::default(),
-            limits: IngestLimits::default(),
-        };
+            Constraints::default(),
+        );
         let t0 = Instant::now();
         let out = transfer(&ti, &Control::new()).map_err(|e| e.to_string())?;
         let total = t0.elapsed().as_secs_f64() * 1e3;
-        for t in out.report.timings.iter().filter(|t| t.stage == "load") {
-            record("load both models", t.ms);
-        }
-        for t in out.report.method_report["timings_ms"]
-            .as_array()
-            .into_iter()
-            .flatten()
-        {
-            if let (Some(name), Some(ms)) = (t[0].as_str(), t[1].as_f64()) {
-                let label = match name {
-                    "surface" => "surfaces (weld) + BVHs",
-                    "align" => "align",
-                    "bake" => "bake: rasterize + closest point + sample",
-                    "pad" => "pad + PNG encode",
-                    "vertex_colors" => "refine + COLOR_0",
-                    other => other,
-                };
-                record(label, ms);
-            }
-        }
-        for t in out.report.timings.iter().filter(|t| t.stage == "export") {
-            record("export", t.ms);
+        for t in &out.report.timings {
+            let label = match t.stage.as_str() {
+                "load" => "load both models",
+                "surface" => "surfaces (weld) + BVHs",
+                "align" => "align",
+                "bake" => "bake: rasterize + closest point + sample",
+                "pad" => "pad + PNG encode",
+                "vertex_colors" => "refine + COLOR_0",
+                other => other,
+            };
+            record(label, t.ms);
         }
         record("whole transfer (load → export)", total);
     }

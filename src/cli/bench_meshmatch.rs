@@ -7,7 +7,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use retex::engine::asset::constraints::Constraints;
-use retex::engine::asset::{BlobSet, IngestLimits};
+use retex::engine::asset::BlobSet;
 use retex::engine::control::Control;
 use retex::engine::pipeline::{transfer, ModelInput, TransferInput};
 
@@ -69,18 +69,17 @@ fn measure(assets: &Path, runs: usize, randomized: bool) -> Result<Measured, Str
                        "measure_fidelity": quality, "write_nnf": false}
         }))
         .map_err(|e| e.to_string())?;
-        let input = TransferInput {
-            source: ModelInput {
+        let input = TransferInput::pair(
+            ModelInput {
                 main: &sm,
                 blobs: &sb,
             },
-            target: ModelInput {
+            ModelInput {
                 main: &tm,
                 blobs: &tb,
             },
             constraints,
-            limits: IngestLimits::default(),
-        };
+        );
         let t0 = Instant::now();
         let out = transfer(&input, &Control::new()).map_err(|e| e.to_string())?;
         let whole = t0.elapsed().as_secs_f64() * 1e3;

@@ -27,10 +27,12 @@ pub fn check_output(out: &Path, extensions: &[&str]) -> Result<(), String> {
                 folder.display()
             ))
         }
-        Err(e) => return Err(format!(
+        Err(e) => {
+            return Err(format!(
             "--out {shown}: the folder {} does not exist or cannot be read ({e}); create it first",
             folder.display()
-        )),
+        ))
+        }
     }
     if out.is_dir() {
         return Err(format!("--out {shown} is a folder; give a file name"));

@@ -6,14 +6,16 @@ use std::time::Duration;
 
 use indicatif::{ProgressBar, ProgressStyle};
 use retex::engine::asset::constraints::{Constraints, MethodId, OutputFormat};
-use retex::engine::asset::{BlobSet, IngestLimits};
+use retex::engine::asset::BlobSet;
 use retex::engine::control::Control;
-use retex::engine::pipeline::{transfer, ModelInput, TransferInput};
+use retex::engine::pipeline::{transfer, ImageInput, ModelInput, TransferInput};
 
 /// Arguments of `retex transfer`.
 pub struct Args {
-    pub source: PathBuf,
+    pub source: Option<PathBuf>,
     pub target: PathBuf,
+    pub source_base: Option<PathBuf>,
+    pub pattern: Option<PathBuf>,
     pub constraints: Option<PathBuf>,
     pub method: Option<String>,
     pub out: PathBuf,
@@ -32,8 +34,19 @@ pub fn run(args: &Args) -> Result<(), String> {
     if let Some(dir) = &args.artifacts {
         std::fs::create_dir_all(dir).map_err(|e| format!("--artifacts {}: {e}", dir.display()))?;
     }
-    let (src_main, src_blobs) = read_model(&args.source)?;
+    let source = args.source.as_deref().map(read_model).transpose()?;
     let (tgt_main, tgt_blobs) = read_model(&args.target)?;
+    let base = args.source_base.as_deref().map(read_model).transpose()?;
+    let pattern = match &args.pattern {
+        Some(p) => {
+            let bytes = std::fs::read(p).map_err(|e| format!("{}: {e}", p.display()))?;
+            let name = p
+                .file_name()
+                .map_or_else(|| "pattern".into(), |n| n.to_string_lossy().into_owned());
+            Some((name, bytes))
+        }
+        None => None,
+    };
     let mut constraints = match &args.constraints {
         Some(p) => {
             let bytes = std::fs::read(p).map_err(|e| format!("{}: {e}", p.display()))?;
@@ -65,29 +78,28 @@ pub fn run(args: &Args) -> Result<(), String> {
             .expect("valid template")
             .progress_chars("=> "),
     );
-    let input = TransferInput {
-        source: ModelInput {
-            main: &src_main,
-            blobs: &src_blobs,
-        },
-        target: ModelInput {
+    let mut input = TransferInput::new(
+        ModelInput {
             main: &tgt_main,
             blobs: &tgt_blobs,
         },
         constraints,
-        limits: IngestLimits::default(),
-    };
+    );
+    if let Some((main, blobs)) = &source {
+        input = input.with_source(ModelInput { main, blobs });
+    }
+    if let Some((main, blobs)) = &base {
+        input = input.with_source_base(ModelInput { main, blobs });
+    }
+    if let Some((name, bytes)) = &pattern {
+        input = input.with_pattern(ImageInput { name, bytes });
+    }
     let result = std::thread::scope(|scope| {
         let worker = scope.spawn(|| transfer(&input, &control));
         while !worker.is_finished() {
             let p = control.progress();
             bar.set_position((p.fraction * 1000.0) as u64);
-            bar.set_message(format!(
-                "{} ({}/{})",
-                p.stage,
-                p.stages_done + 1,
-                p.stages_total.max(1)
-            ));
+            bar.set_message(p.stage);
             std::thread::sleep(Duration::from_millis(50));
         }
         match worker.join() {
@@ -113,6 +125,7 @@ pub fn run(args: &Args) -> Result<(), String> {
     }
     if !args.quiet {
         let total: f64 = output.report.timings.iter().map(|t| t.ms).sum();
+
         eprintln!(
             "wrote {} ({} bytes) in {:.0} ms",
             args.out.display(),
@@ -124,18 +137,9 @@ pub fn run(args: &Args) -> Result<(), String> {
             .source_warnings
             .iter()
             .chain(&output.report.target_warnings)
+            .chain(&output.report.warnings)
         {
             eprintln!("warning: {w}");
-        }
-        if let Some(ws) = output
-            .report
-            .method_report
-            .get("warnings")
-            .and_then(|w| w.as_array())
-        {
-            for w in ws.iter().filter_map(|w| w.as_str()) {
-                eprintln!("warning: {w}");
-            }
         }
     }
     Ok(())

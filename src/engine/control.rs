@@ -1,12 +1,24 @@
-//! Control of a running engine call: a cancel flag, named stages and a progress fraction.
+//! Control of a running engine call: a cancel flag, named stages with their timings and a
+//! progress fraction.
 //!
 //! A [`Control`] is cheap to clone (shared state behind an `Arc`); the service keeps one clone to
 //! poll progress and request cancellation while the engine runs on a worker thread. Long loops
 //! call [`StageProgress::tick`] (or [`Control::check`]) at least every ~100 ms of work; both
 //! return [`Cancelled`] once cancellation was requested.
+//!
+//! **Timings.** Every [`Control::stage`] closes the previous stage and opens a new one;
+//! [`Control::timings`] lists each stage's wall-clock time, which is what reports show (no
+//! method keeps its own stopwatch).
+//!
+//! **Progress.** There is no stage count to plan: the overall fraction is divided into nested
+//! [`Control::span`]s (the pipeline gives the method its share of the job, a method gives each
+//! phase, e.g. each hierarchy level, its share of that), and inside the innermost span the
+//! current stage's ticks move the fraction from the span's start to its end. The published
+//! fraction never goes backwards and reaches 1 only at [`Control::finish`].
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
+use std::time::Instant;
 
 /// Returned by checks once cancellation has been requested.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
@@ -20,13 +32,22 @@ pub struct Progress {
     pub stage: String,
     /// Fraction of the current stage done, 0..=1.
     pub stage_fraction: f64,
-    /// Overall fraction done, 0..=1: finished stages plus the current stage's fraction, over
-    /// the planned stage count.
+    /// Overall fraction done, 0..=1 (monotone; 1 only once finished).
     pub fraction: f64,
     /// Stages finished so far.
     pub stages_done: u32,
-    /// Stages planned (grows if more stages start than planned).
+    /// Stages started so far (the run does not know its stage count in advance; `fraction` is
+    /// the measure of the whole).
     pub stages_total: u32,
+}
+
+/// Wall-clock time of one stage.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct StageTiming {
+    /// Stage name (with its prefix, e.g. `meshmatch level 2/9: vote`).
+    pub stage: String,
+    /// Milliseconds from the stage's start to the next stage's start (or the finish).
+    pub ms: f64,
 }
 
 #[derive(Debug, Default)]
@@ -35,8 +56,30 @@ struct StageState {
     /// Prepended to stage names (`"<prefix>: <name>"`) while set.
     prefix: String,
     started: u32,
-    planned: u32,
     finished: bool,
+    /// Absolute [start, end] fractions of the open spans, innermost last.
+    spans: Vec<(f64, f64)>,
+    /// Lowest fraction that may still be published (keeps it monotone).
+    floor: f64,
+    /// Start of the current stage.
+    stage_start: Option<Instant>,
+    /// Finished stages.
+    timings: Vec<StageTiming>,
+}
+
+impl StageState {
+    fn span(&self) -> (f64, f64) {
+        self.spans.last().copied().unwrap_or((0.0, 1.0))
+    }
+
+    fn close_stage(&mut self, now: Instant) {
+        if let Some(start) = self.stage_start.take() {
+            self.timings.push(StageTiming {
+                stage: self.name.clone(),
+                ms: (now - start).as_secs_f64() * 1e3,
+            });
+        }
+    }
 }
 
 #[derive(Debug, Default)]
@@ -61,9 +104,29 @@ impl Control {
         Self::default()
     }
 
-    /// Declares how many stages the run will have (for the overall fraction).
-    pub fn plan(&self, stages: u32) {
-        self.lock().planned = stages;
+    /// Gives the stages that follow, until the guard drops, the share `[start, end]` (fractions
+    /// of the enclosing span) of the overall progress. Spans nest.
+    pub fn span(&self, start: f64, end: f64) -> Span<'_> {
+        let mut s = self.lock();
+        let (lo, hi) = s.span();
+        let (start, end) = (start.clamp(0.0, 1.0), end.clamp(0.0, 1.0));
+        let abs = (lo + (hi - lo) * start, lo + (hi - lo) * end.max(start));
+        s.floor = s.floor.max(abs.0);
+        s.spans.push(abs);
+        Span { control: self }
+    }
+
+    /// Wall-clock time of every stage so far (the current one up to now).
+    pub fn timings(&self) -> Vec<StageTiming> {
+        let s = self.lock();
+        let mut out = s.timings.clone();
+        if let Some(start) = s.stage_start {
+            out.push(StageTiming {
+                stage: s.name.clone(),
+                ms: start.elapsed().as_secs_f64() * 1e3,
+            });
+        }
+        out
     }
 
     /// Sets a context shown before every following stage name (`""` clears it), e.g. the level
@@ -75,16 +138,6 @@ impl Control {
     /// Stages started so far.
     pub fn stages_started(&self) -> u32 {
         self.lock().started
-    }
-
-    /// Raises the planned stage count to at least `started + more` (a method that learns its
-    /// size while running, e.g. the number of hierarchy levels).
-    pub fn plan_more(&self, more: u32) {
-        let mut s = self.lock();
-        let want = s.started + more;
-        if s.planned < want {
-            s.planned = want;
-        }
     }
 
     /// Requests cancellation; running loops stop at their next check.
@@ -112,64 +165,94 @@ impl Control {
         self.check()?;
         {
             let mut s = self.lock();
+            let now = Instant::now();
+            s.close_stage(now);
+            // The previous stage's progress stays published.
+            let before = self.fraction_in(&s);
+            s.floor = s.floor.max(before);
             s.name = if s.prefix.is_empty() {
                 name.to_string()
             } else {
                 format!("{}: {name}", s.prefix)
             };
             s.started += 1;
-            if s.planned < s.started {
-                s.planned = s.started;
-            }
+            s.stage_start = Some(now);
+            self.inner.total.store(total_work, Ordering::Relaxed);
+            self.inner.done.store(0, Ordering::Relaxed);
         }
-        self.inner.total.store(total_work, Ordering::Relaxed);
-        self.inner.done.store(0, Ordering::Relaxed);
         Ok(StageProgress { control: self })
     }
 
-    /// The current progress.
-    pub fn progress(&self) -> Progress {
-        let s = self.lock();
+    fn stage_fraction(&self) -> f64 {
         let total = self.inner.total.load(Ordering::Relaxed);
         let done = self.inner.done.load(Ordering::Relaxed);
-        let stage_fraction = if total == 0 {
+        if total == 0 {
             0.0
         } else {
             (done as f64 / total as f64).min(1.0)
-        };
+        }
+    }
+
+    /// The fraction the current stage's ticks give inside the innermost span.
+    fn fraction_in(&self, s: &StageState) -> f64 {
+        if s.started == 0 {
+            return 0.0;
+        }
+        let (lo, hi) = s.span();
+        lo + (hi - lo) * self.stage_fraction()
+    }
+
+    /// The current progress (the fraction never decreases from one call to the next).
+    pub fn progress(&self) -> Progress {
+        let mut s = self.lock();
         let stages_done = if s.finished {
             s.started
         } else {
             s.started.saturating_sub(1)
         };
-        let planned = s.planned.max(1);
         let fraction = if s.finished {
             1.0
-        } else if s.started == 0 {
-            0.0
         } else {
-            ((stages_done as f64 + stage_fraction) / planned as f64).min(1.0)
+            // Below 1 until `finish`: the last stage may still be writing.
+            let f = self.fraction_in(&s).max(s.floor).min(0.999);
+            s.floor = f;
+            f
         };
         Progress {
             stage: s.name.clone(),
-            stage_fraction,
+            stage_fraction: self.stage_fraction(),
             fraction,
             stages_done,
-            stages_total: s.planned,
+            stages_total: s.started,
         }
     }
 
-    /// Marks every stage finished (fraction 1).
+    /// Marks every stage finished (fraction 1) and closes the last stage's timing.
     pub fn finish(&self) {
         let mut s = self.lock();
+        s.close_stage(Instant::now());
         s.finished = true;
-        s.planned = s.started;
         s.name = "done".to_string();
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, StageState> {
         // A panic while holding this lock cannot leave the state inconsistent (plain fields).
         self.inner.stage.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+/// An open progress span (see [`Control::span`]); closing it publishes at least its end.
+#[derive(Debug)]
+pub struct Span<'a> {
+    control: &'a Control,
+}
+
+impl Drop for Span<'_> {
+    fn drop(&mut self) {
+        let mut s = self.control.lock();
+        if let Some((_, end)) = s.spans.pop() {
+            s.floor = s.floor.max(end);
+        }
     }
 }
 
@@ -192,24 +275,52 @@ mod tests {
     use super::*;
 
     #[test]
-    fn fraction_counts_finished_stages_and_the_current_one() {
+    fn fraction_follows_spans_and_the_current_stage() {
         let c = Control::new();
-        c.plan(4);
-        let s = c.stage("load", 10).unwrap();
-        s.tick(5).unwrap();
-        let p = c.progress();
-        assert_eq!(p.stage, "load");
-        assert!((p.fraction - 0.125).abs() < 1e-9, "{p:?}");
-        c.stage("bake", 0).unwrap();
-        let p = c.progress();
-        assert_eq!(p.stages_done, 1);
-        assert!((p.fraction - 0.25).abs() < 1e-9);
+        {
+            let _load = c.span(0.0, 0.25);
+            let s = c.stage("load", 10).unwrap();
+            s.tick(5).unwrap();
+            let p = c.progress();
+            assert_eq!(p.stage, "load");
+            assert!((p.fraction - 0.125).abs() < 1e-9, "{p:?}");
+        }
+        {
+            let _method = c.span(0.25, 1.0);
+            let _half = c.span(0.0, 0.5);
+            let s = c.stage("bake", 4).unwrap();
+            s.tick(2).unwrap();
+            let p = c.progress();
+            assert_eq!(p.stages_done, 1);
+            // 0.25 + 0.75 * (0.5 * 0.5)
+            assert!((p.fraction - 0.4375).abs() < 1e-9, "{p:?}");
+        }
+        assert!(c.progress().fraction >= 1.0 - 1e-3 - 1e-9);
+        assert!(c.progress().fraction < 1.0, "1 only at finish");
         c.finish();
         assert!(
             (c.progress().fraction - 1.0).abs() < 1e-9,
             "{:?}",
             c.progress()
         );
+    }
+
+    #[test]
+    fn fraction_never_goes_backwards_and_stages_are_timed() {
+        let c = Control::new();
+        let _all = c.span(0.0, 1.0);
+        let s = c.stage("a", 10).unwrap();
+        s.tick(9).unwrap();
+        let high = c.progress().fraction;
+        // A new stage in the same span starts its ticks from zero: the fraction holds.
+        c.stage("b", 10).unwrap();
+        assert!(c.progress().fraction >= high);
+        c.set_prefix("level 1/2");
+        c.stage("c", 0).unwrap();
+        c.finish();
+        let names: Vec<String> = c.timings().into_iter().map(|t| t.stage).collect();
+        assert_eq!(names, ["a", "b", "level 1/2: c"]);
+        assert!(c.timings().iter().all(|t| t.ms >= 0.0));
     }
 
     #[test]

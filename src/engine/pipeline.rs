@@ -1,26 +1,21 @@
-//! The whole transfer as one call: ingest both assets, run the method, export. This is exactly
-//! what a service job runs and what `retex transfer` runs (DESIGN.md "Data flow").
+//! The whole transfer as one call: check the constraints and the method's params, load the
+//! inputs the method declares, run the method, apply its edits to the asset it names and export.
+//! This is exactly what a service job runs and what `retex transfer` runs (DESIGN.md "Data
+//! flow"). No method is named here: methods come from a [`Registry`].
 //!
-//! Stages reported through the [`Control`]: load, surface, align, bake, pad, export. The output
-//! model bytes are deterministic (same inputs, constraints and seed give identical bytes with any
-//! thread count); the report carries wall-clock timings and so is not.
-
-use std::time::Instant;
+//! Progress: loading takes the first 5% of the job, the method 90%, export the rest; stage
+//! timings come from the [`Control`]. The output model bytes are deterministic (same inputs,
+//! constraints and seed give identical bytes with any thread count); the report carries
+//! wall-clock timings and so is not.
 
 use serde::Serialize;
 
 use crate::engine::asset::constraints::{Constraints, ConstraintsError, MethodId, OutputFormat};
+use crate::engine::asset::edits::{Edit, EditedAsset};
 use crate::engine::asset::export::{export, ExportError};
-use crate::engine::asset::{load, BlobSet, IngestError, IngestLimits};
-use crate::engine::control::{Cancelled, Control};
-use crate::engine::methods::meshmatch::{self, MeshMatchError, MeshMatchParams};
-use crate::engine::methods::project::{self, ProjectError, ProjectParams};
-
-/// The parsed parameters of the method that runs.
-enum MethodParams {
-    Project(ProjectParams),
-    Meshmatch(Box<MeshMatchParams>),
-}
+use crate::engine::asset::{load, Asset, BlobSet, IngestError, IngestLimits};
+use crate::engine::control::{Cancelled, Control, StageTiming};
+use crate::engine::methods::{InputUse, Method, MethodError, MethodInput, PatternImage, Registry};
 
 /// One input model: the name of its main file inside its blob set.
 #[derive(Clone, Copy, Debug)]
@@ -31,37 +26,83 @@ pub struct ModelInput<'a> {
     pub blobs: &'a BlobSet,
 }
 
-/// Everything a transfer needs.
-#[derive(Clone, Debug)]
-pub struct TransferInput<'a> {
-    /// The textured source.
-    pub source: ModelInput<'a>,
-    /// The target that receives the appearance.
-    pub target: ModelInput<'a>,
-    /// The job description.
-    pub constraints: Constraints,
-    /// Ingest limits applied to both models.
-    pub limits: IngestLimits,
+/// An input image file (a pattern).
+#[derive(Clone, Copy, Debug)]
+pub struct ImageInput<'a> {
+    /// File name as uploaded.
+    pub name: &'a str,
+    /// Encoded bytes (PNG or JPEG).
+    pub bytes: &'a [u8],
 }
 
-/// A named by-product of a job (baked PNGs, the report).
+/// Everything a transfer needs. Build it with [`TransferInput::new`] and the `with_*` methods.
+#[derive(Clone, Debug)]
+pub struct TransferInput<'a> {
+    pub(crate) source: Option<ModelInput<'a>>,
+    pub(crate) target: ModelInput<'a>,
+    pub(crate) source_base: Option<ModelInput<'a>>,
+    pub(crate) pattern: Option<ImageInput<'a>>,
+    pub(crate) constraints: Constraints,
+    pub(crate) limits: IngestLimits,
+}
+
+impl<'a> TransferInput<'a> {
+    /// A transfer onto `target` described by `constraints`, with default ingest limits.
+    pub fn new(target: ModelInput<'a>, constraints: Constraints) -> Self {
+        Self {
+            source: None,
+            target,
+            source_base: None,
+            pattern: None,
+            constraints,
+            limits: IngestLimits::default(),
+        }
+    }
+
+    /// The common case: a source and a target.
+    pub fn pair(source: ModelInput<'a>, target: ModelInput<'a>, constraints: Constraints) -> Self {
+        Self::new(target, constraints).with_source(source)
+    }
+
+    /// Adds the source model.
+    pub fn with_source(mut self, source: ModelInput<'a>) -> Self {
+        self.source = Some(source);
+        self
+    }
+
+    /// Adds the smooth base of the source.
+    pub fn with_source_base(mut self, base: ModelInput<'a>) -> Self {
+        self.source_base = Some(base);
+        self
+    }
+
+    /// Adds a pattern image.
+    pub fn with_pattern(mut self, pattern: ImageInput<'a>) -> Self {
+        self.pattern = Some(pattern);
+        self
+    }
+
+    /// Sets the ingest limits applied to every model and image.
+    pub fn with_limits(mut self, limits: IngestLimits) -> Self {
+        self.limits = limits;
+        self
+    }
+
+    /// The job description.
+    pub fn constraints(&self) -> &Constraints {
+        &self.constraints
+    }
+}
+
+/// A named by-product of a job (baked images, extra files, the report).
 #[derive(Clone, Debug)]
 pub struct Artifact {
     /// File name, unique within the job.
     pub name: String,
     /// MIME type.
-    pub media_type: &'static str,
+    pub media_type: String,
     /// Content.
     pub bytes: Vec<u8>,
-}
-
-/// Wall-clock time of one stage.
-#[derive(Clone, Debug, Serialize)]
-pub struct StageTiming {
-    /// Stage name.
-    pub stage: String,
-    /// Milliseconds.
-    pub ms: f64,
 }
 
 /// The job report (also written as the `report.json` artifact).
@@ -69,13 +110,17 @@ pub struct StageTiming {
 pub struct TransferReport {
     /// The method that ran.
     pub method: MethodId,
+    /// The asset that was edited and exported.
+    pub edited: EditedAsset,
     /// Warnings from ingest of the source.
     pub source_warnings: Vec<String>,
     /// Warnings from ingest of the target.
     pub target_warnings: Vec<String>,
+    /// Warnings of the pipeline and the method.
+    pub warnings: Vec<String>,
     /// The method's own figures.
     pub method_report: serde_json::Value,
-    /// Time per stage.
+    /// Time per stage, from the [`Control`].
     pub timings: Vec<StageTiming>,
     /// Size of the output model in bytes.
     pub output_bytes: usize,
@@ -84,7 +129,7 @@ pub struct TransferReport {
 /// The result of a transfer.
 #[derive(Clone, Debug)]
 pub struct TransferOutput {
-    /// The textured target, GLB or .gltf.
+    /// The edited asset, GLB or .gltf.
     pub model: Vec<u8>,
     /// Its format.
     pub format: OutputFormat,
@@ -94,13 +139,13 @@ pub struct TransferOutput {
     pub artifacts: Vec<Artifact>,
 }
 
-/// Failures of a transfer; each names the side or field at fault.
+/// Failures of a transfer; each names the input or field at fault.
 #[derive(Debug, thiserror::Error)]
 pub enum TransferError {
-    /// One of the models could not be loaded.
+    /// An input could not be loaded.
     #[error("{side}: {source}")]
     Ingest {
-        /// "source" or "target".
+        /// `source`, `target`, `source_base` or `pattern`.
         side: &'static str,
         /// The cause.
         source: IngestError,
@@ -108,15 +153,25 @@ pub enum TransferError {
     /// The constraints are invalid.
     #[error(transparent)]
     Constraints(#[from] ConstraintsError),
-    /// The method is known but not implemented yet.
-    #[error("method {0:?} is not implemented yet; available: project, meshmatch")]
-    MethodNotImplemented(&'static str),
-    /// The `project` method failed.
+    /// The method is known but not implemented.
+    #[error("method {method:?} is not implemented yet; available: {available}")]
+    MethodNotImplemented {
+        /// The requested id.
+        method: &'static str,
+        /// The implemented ids.
+        available: String,
+    },
+    /// The method needs an input that was not given.
+    #[error("method {method:?} needs a {input} input")]
+    MissingInput {
+        /// The method.
+        method: &'static str,
+        /// `source`, `source_base` or `pattern`.
+        input: &'static str,
+    },
+    /// The method failed.
     #[error(transparent)]
-    Project(ProjectError),
-    /// The `meshmatch` method failed.
-    #[error(transparent)]
-    Meshmatch(MeshMatchError),
+    Method(MethodError),
     /// Writing the output failed.
     #[error(transparent)]
     Export(#[from] ExportError),
@@ -131,117 +186,226 @@ impl From<Cancelled> for TransferError {
     }
 }
 
-impl From<ProjectError> for TransferError {
-    fn from(e: ProjectError) -> Self {
+impl From<MethodError> for TransferError {
+    fn from(e: MethodError) -> Self {
         match e {
-            ProjectError::Cancelled(_) => TransferError::Cancelled,
-            ProjectError::Constraints(c) => TransferError::Constraints(c),
-            other => TransferError::Project(other),
+            MethodError::Cancelled => TransferError::Cancelled,
+            MethodError::Constraints(c) => TransferError::Constraints(c),
+            other => TransferError::Method(other),
         }
     }
 }
 
-impl From<MeshMatchError> for TransferError {
-    fn from(e: MeshMatchError) -> Self {
-        if e.is_cancelled() {
-            return TransferError::Cancelled;
-        }
-        match e {
-            MeshMatchError::Constraints(c) => TransferError::Constraints(c),
-            other => TransferError::Meshmatch(other),
-        }
-    }
+/// The method a constraints document asks for, checked: the id is implemented and the params
+/// pass the method's own check. This is what submission runs before accepting a job.
+///
+/// # Errors
+/// [`TransferError::Constraints`] or [`TransferError::MethodNotImplemented`].
+pub fn checked_method(
+    registry: &Registry,
+    constraints: &Constraints,
+) -> Result<&'static dyn Method, TransferError> {
+    constraints.validate()?;
+    let method =
+        registry
+            .get(constraints.method)
+            .ok_or_else(|| TransferError::MethodNotImplemented {
+                method: constraints.method.as_str(),
+                available: registry.available(),
+            })?;
+    method.check(constraints)?;
+    Ok(method)
 }
 
-/// Runs a whole transfer under `control`.
+/// Runs a whole transfer with the built-in methods under `control`.
+///
+/// # Errors
+/// [`TransferError`]; any error raised after cancellation was requested is
+/// [`TransferError::Cancelled`].
 pub fn transfer(
     input: &TransferInput<'_>,
     control: &Control,
 ) -> Result<TransferOutput, TransferError> {
-    let c = &input.constraints;
-    c.validate()?;
-    let params = match c.method {
-        MethodId::Project => MethodParams::Project(ProjectParams::from_constraints(c)?),
-        MethodId::Meshmatch => {
-            MethodParams::Meshmatch(Box::new(MeshMatchParams::from_constraints(c)?))
-        }
-        other => return Err(TransferError::MethodNotImplemented(other.as_str())),
-    };
-    control.plan(6);
-    let mut timings = Vec::new();
-    let mut clock = Instant::now();
-    let mut lap = |name: &str, timings: &mut Vec<StageTiming>| {
-        let now = Instant::now();
-        timings.push(StageTiming {
-            stage: name.to_string(),
-            ms: (now - clock).as_secs_f64() * 1e3,
-        });
-        clock = now;
-    };
+    transfer_with(&Registry::builtin(), input, control)
+}
 
-    control.stage("load", 2)?;
-    let source = load(input.source.main, input.source.blobs, &input.limits).map_err(|source| {
-        TransferError::Ingest {
-            side: "source",
-            source,
+/// Runs a whole transfer with the methods of `registry` under `control`.
+///
+/// # Errors
+/// As [`transfer`].
+pub fn transfer_with(
+    registry: &Registry,
+    input: &TransferInput<'_>,
+    control: &Control,
+) -> Result<TransferOutput, TransferError> {
+    run(registry, input, control).map_err(|e| {
+        if control.is_cancelled() {
+            TransferError::Cancelled
+        } else {
+            e
         }
-    })?;
+    })
+}
+
+/// The inputs as loaded.
+struct Loaded {
+    source: Option<Asset>,
+    target: Asset,
+    source_base: Option<Asset>,
+    pattern: Option<PatternImage>,
+    warnings: Vec<String>,
+}
+
+fn load_model(
+    side: &'static str,
+    m: ModelInput<'_>,
+    limits: &IngestLimits,
+) -> Result<Asset, TransferError> {
+    load(m.main, m.blobs, limits).map_err(|source| TransferError::Ingest { side, source })
+}
+
+/// Loads what `method` declares; refuses a missing required input, warns about unused ones.
+fn load_inputs(
+    method: &dyn Method,
+    input: &TransferInput<'_>,
+    control: &Control,
+) -> Result<Loaded, TransferError> {
+    let spec = method.inputs();
+    let id = method.id().as_str();
+    let mut warnings = Vec::new();
+    let wanted = |name: &'static str, given: bool, used: InputUse| match (given, used) {
+        (false, InputUse::Required) => Err(TransferError::MissingInput {
+            method: id,
+            input: name,
+        }),
+        (true, InputUse::Unused) => Ok(false),
+        (given, _) => Ok(given),
+    };
+    let use_source = wanted("source", input.source.is_some(), spec.source)?;
+    let use_base = wanted("source_base", input.source_base.is_some(), spec.source_base)?;
+    let use_pattern = wanted("pattern", input.pattern.is_some(), spec.pattern)?;
+    for (name, given, used) in [
+        ("source", input.source.is_some(), use_source),
+        ("source_base", input.source_base.is_some(), use_base),
+        ("pattern", input.pattern.is_some(), use_pattern),
+    ] {
+        if given && !used {
+            warnings.push(format!(
+                "method {id} does not read a {name}; it was ignored"
+            ));
+        }
+    }
+    let stage = control.stage("load", 4)?;
+    let limits = &input.limits;
+    let source = match input.source.filter(|_| use_source) {
+        Some(m) => Some(load_model("source", m, limits)?),
+        None => None,
+    };
+    stage.tick(1)?;
     control.check()?;
-    let target = load(input.target.main, input.target.blobs, &input.limits).map_err(|source| {
-        TransferError::Ingest {
-            side: "target",
-            source,
-        }
-    })?;
-    lap("load", &mut timings);
-
-    let mut extra = Vec::new();
-    let (edits, method_report) = match &params {
-        MethodParams::Project(p) => {
-            let (edits, report) = project::run(&source, &target, c, p, control)?;
-            lap("project", &mut timings);
-            (edits, serde_json::to_value(&report).unwrap_or_default())
-        }
-        MethodParams::Meshmatch(p) => {
-            let (edits, report, nnf) = meshmatch::run(&source, &target, c, p, control)?;
-            lap("meshmatch", &mut timings);
-            if let Some(bytes) = nnf {
-                extra.push(Artifact {
-                    name: "nnf.bin".into(),
-                    media_type: "application/octet-stream",
-                    bytes,
-                });
-            }
-            (edits, serde_json::to_value(&report).unwrap_or_default())
-        }
+    let target = load_model("target", input.target, limits)?;
+    stage.tick(1)?;
+    let source_base = match input.source_base.filter(|_| use_base) {
+        Some(m) => Some(load_model("source_base", m, limits)?),
+        None => None,
     };
+    stage.tick(1)?;
+    let pattern = match input.pattern.filter(|_| use_pattern) {
+        Some(p) => Some(
+            PatternImage::decode(p.name, p.bytes.to_vec(), limits).map_err(|source| {
+                TransferError::Ingest {
+                    side: "pattern",
+                    source,
+                }
+            })?,
+        ),
+        None => None,
+    };
+    stage.tick(1)?;
+    Ok(Loaded {
+        source,
+        target,
+        source_base,
+        pattern,
+        warnings,
+    })
+}
 
+/// Artifacts of the images the edits add, in edit order.
+fn image_artifacts(edits: &[Edit]) -> Vec<Artifact> {
+    edits
+        .iter()
+        .filter_map(|e| match e {
+            Edit::SetTexture { image, .. } => Some(Artifact {
+                name: format!("{}.{}", image.name, image.extension()),
+                media_type: image.mime_type.clone(),
+                bytes: image.bytes.clone(),
+            }),
+            _ => None,
+        })
+        .collect()
+}
+
+fn run(
+    registry: &Registry,
+    input: &TransferInput<'_>,
+    control: &Control,
+) -> Result<TransferOutput, TransferError> {
+    let c = &input.constraints;
+    let method = checked_method(registry, c)?;
+    let span = control.span(0.0, 0.05);
+    let loaded = load_inputs(method, input, control)?;
+    drop(span);
+
+    let span = control.span(0.05, 0.95);
+    let out = method.run(
+        &MethodInput {
+            source: loaded.source.as_ref(),
+            target: &loaded.target,
+            source_base: loaded.source_base.as_ref(),
+            pattern: loaded.pattern.as_ref(),
+            constraints: c,
+        },
+        control,
+    )?;
+    drop(span);
+
+    let _span = control.span(0.95, 1.0);
     control.stage("export", 1)?;
-    let model = export(&target, &edits, c.output.format)?;
-    lap("export", &mut timings);
+    let edited = match out.asset {
+        EditedAsset::Target => &loaded.target,
+        EditedAsset::Source => loaded.source.as_ref().ok_or_else(|| {
+            MethodError::Internal("the method edited a source it did not read".into())
+        })?,
+    };
+    let model = export(edited, &out.edits, c.output.format)?;
     control.finish();
 
-    let mut artifacts: Vec<Artifact> = edits
-        .textures
-        .iter()
-        .map(|t| Artifact {
-            name: format!("{}.png", t.name),
-            media_type: "image/png",
-            bytes: t.png.clone(),
-        })
-        .collect();
+    let mut warnings = loaded.warnings;
+    warnings.extend(out.warnings);
     let report = TransferReport {
         method: c.method,
-        source_warnings: source.warnings.clone(),
-        target_warnings: target.warnings.clone(),
-        method_report,
-        timings,
+        edited: out.asset,
+        source_warnings: loaded
+            .source
+            .as_ref()
+            .map(|s| s.warnings.clone())
+            .unwrap_or_default(),
+        target_warnings: loaded.target.warnings.clone(),
+        warnings,
+        method_report: out.report,
+        timings: control.timings(),
         output_bytes: model.len(),
     };
-    artifacts.extend(extra);
+    let mut artifacts = image_artifacts(&out.edits);
+    artifacts.extend(out.files.into_iter().map(|f| Artifact {
+        name: f.name,
+        media_type: f.media_type,
+        bytes: f.bytes,
+    }));
     artifacts.push(Artifact {
         name: "report.json".into(),
-        media_type: "application/json",
+        media_type: "application/json".into(),
         bytes: serde_json::to_vec_pretty(&report).unwrap_or_default(),
     });
     Ok(TransferOutput {

@@ -8,4 +8,5 @@ pub mod config;
 pub mod http;
 pub mod jobs;
 pub mod model;
+pub mod problem_table;
 pub mod store;

@@ -103,10 +103,14 @@ pub struct ModelFiles {
 /// What a job was submitted with (all stored as blobs before the job is accepted).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct JobInputs {
-    /// The textured source.
-    pub source: ModelFiles,
+    /// The source model, for methods that read one.
+    #[serde(default)]
+    pub source: Option<ModelFiles>,
     /// The target.
     pub target: ModelFiles,
+    /// The smooth base of the source, for methods that read one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub source_base: Option<ModelFiles>,
     /// Blob key of the constraints JSON.
     pub constraints: String,
     /// Blob key of the optional pattern image.

@@ -3,6 +3,8 @@
 
 use std::path::PathBuf;
 
+pub mod planar_pattern;
+
 /// The shared asset folder: `$RETEX_SHARED_ASSETS`, else `../shared/assets` next to the crate.
 pub fn shared_assets_dir() -> PathBuf {
     if let Ok(dir) = std::env::var("RETEX_SHARED_ASSETS") {
@@ -97,11 +99,11 @@ pub fn psnr_masked(a: &[[u8; 4]], b: &[[u8; 4]], mask: &[bool]) -> f64 {
 /// Builds a GLB from a JSON document and a binary chunk (both padded to 4 bytes).
 pub fn glb(json: &serde_json::Value, bin: &[u8]) -> Vec<u8> {
     let mut text = serde_json::to_vec(json).unwrap();
-    while text.len() % 4 != 0 {
+    while !text.len().is_multiple_of(4) {
         text.push(b' ');
     }
     let mut bin = bin.to_vec();
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     let total = 12 + 8 + text.len() + 8 + bin.len();

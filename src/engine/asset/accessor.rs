@@ -217,7 +217,7 @@ pub fn layout(root: &Root, views: &[ViewRange], index: usize) -> Result<Layout, 
         let vi = v.value();
         let view = get_view(vi, "bufferView")?;
         let offset = a.byte_offset.map_or(0, |o| o.0);
-        if offset % cs != 0 || (view.offset as u64 + offset) % cs != 0 {
+        if offset % cs != 0 || !(view.offset as u64 + offset).is_multiple_of(cs) {
             return Err(invalid(format!(
                 "byte offset {offset} is not aligned to its {cs}-byte components"
             )));

@@ -10,63 +10,11 @@
 //! bake already holds the final color) and section 3.7.2 (COLOR_0 multiplies base color, so a
 //! stale COLOR_0 is removed from primitives whose material receives a baked texture).
 
-use serde_json::{json, Map, Value};
+use serde_json::{json, Value};
 
 use super::constraints::OutputFormat;
+use super::edits::Edit;
 use super::model::Asset;
-
-/// A baked base-color texture for one material (or for primitives without a material).
-#[derive(Clone, Debug)]
-pub struct MaterialTexture {
-    /// The material that receives the texture; `None` creates a new material for `primitives`.
-    pub material: Option<usize>,
-    /// Indices into [`Asset::primitives`] that use this texture (for `material: None`, they get
-    /// the new material; for all, a stale COLOR_0 is removed).
-    pub primitives: Vec<usize>,
-    /// PNG bytes.
-    pub png: Vec<u8>,
-    /// The TEXCOORD set the texture was baked into.
-    pub tex_coord: u32,
-    /// Name of the new image and texture.
-    pub name: String,
-}
-
-/// New per-vertex colors on a primitive's own vertices.
-#[derive(Clone, Debug)]
-pub struct VertexColors {
-    /// Index into [`Asset::primitives`].
-    pub primitive: usize,
-    /// Linear RGBA per vertex (same count as the primitive's vertices).
-    pub colors: Vec<[f32; 4]>,
-}
-
-/// A primitive replaced by a refined copy carrying COLOR_0.
-#[derive(Clone, Debug)]
-pub struct RefinedPrimitive {
-    /// Index into [`Asset::primitives`].
-    pub primitive: usize,
-    /// Local-space positions.
-    pub positions: Vec<[f32; 3]>,
-    /// Unit normals, when the original had normals.
-    pub normals: Option<Vec<[f32; 3]>>,
-    /// Linear RGBA per vertex.
-    pub colors: Vec<[f32; 4]>,
-    /// Triangles.
-    pub triangles: Vec<[u32; 3]>,
-}
-
-/// Everything a method replaces in the target.
-#[derive(Clone, Debug, Default)]
-pub struct Edits {
-    /// Baked textures.
-    pub textures: Vec<MaterialTexture>,
-    /// COLOR_0 on original vertices.
-    pub vertex_colors: Vec<VertexColors>,
-    /// Refined copies with COLOR_0.
-    pub refined: Vec<RefinedPrimitive>,
-    /// Materials whose base-color texture is removed (their primitives got COLOR_0 instead).
-    pub untextured_materials: Vec<usize>,
-}
 
 /// Export failures.
 #[derive(Debug, thiserror::Error)]
@@ -83,21 +31,29 @@ pub enum ExportError {
     /// An edit names something the asset does not have.
     #[error("edit refers to {what} {index}, which the asset does not have")]
     BadEdit {
-        /// "primitive" or "material".
+        /// "primitive", "material" or "mesh".
         what: &'static str,
         /// The index.
         index: usize,
     },
+    /// An edit's data does not fit what it edits (a count or a type).
+    #[error("edit of {what}: {message}")]
+    MismatchedEdit {
+        /// What was edited (`primitive 3 attribute NORMAL`).
+        what: String,
+        /// What does not fit.
+        message: String,
+    },
 }
 
 /// The binary buffer under construction and the JSON arrays it feeds.
-struct Builder {
-    bin: Vec<u8>,
-    json: Value,
+pub(super) struct Builder {
+    pub(super) bin: Vec<u8>,
+    pub(super) json: Value,
 }
 
 impl Builder {
-    fn array(&mut self, key: &str) -> &mut Vec<Value> {
+    pub(super) fn array(&mut self, key: &str) -> &mut Vec<Value> {
         let obj = self.json.as_object_mut().expect("root is an object");
         let entry = obj.entry(key).or_insert_with(|| Value::Array(Vec::new()));
         if !entry.is_array() {
@@ -106,13 +62,13 @@ impl Builder {
         entry.as_array_mut().expect("just made an array")
     }
 
-    fn align(&mut self, to: usize) {
-        while self.bin.len() % to != 0 {
+    pub(super) fn align(&mut self, to: usize) {
+        while !self.bin.len().is_multiple_of(to) {
             self.bin.push(0);
         }
     }
 
-    fn push_view(&mut self, bytes: &[u8], target: Option<u32>) -> usize {
+    pub(super) fn push_view(&mut self, bytes: &[u8], target: Option<u32>) -> usize {
         self.align(4);
         let offset = self.bin.len();
         self.bin.extend_from_slice(bytes);
@@ -126,7 +82,7 @@ impl Builder {
     }
 
     /// A float accessor of `N` components per element; `with_bounds` adds min/max (POSITION needs them).
-    fn push_f32<const N: usize>(
+    pub(super) fn push_f32<const N: usize>(
         &mut self,
         data: &[[f32; N]],
         ty: &str,
@@ -158,7 +114,7 @@ impl Builder {
         accessors.len() - 1
     }
 
-    fn push_indices(&mut self, triangles: &[[u32; 3]]) -> usize {
+    pub(super) fn push_indices(&mut self, triangles: &[[u32; 3]]) -> usize {
         let mut bytes = Vec::with_capacity(triangles.len() * 12);
         for t in triangles {
             for i in t {
@@ -172,8 +128,12 @@ impl Builder {
     }
 }
 
-/// Writes `asset` with `edits` applied, as GLB or .gltf with embedded buffers.
-pub fn export(asset: &Asset, edits: &Edits, format: OutputFormat) -> Result<Vec<u8>, ExportError> {
+/// Writes `asset` with `edits` applied in order, as GLB or .gltf with embedded buffers.
+///
+/// # Errors
+/// [`ExportError::BadEdit`] / [`ExportError::MismatchedEdit`] for an edit that does not fit the
+/// asset, [`ExportError::TooLarge`] past the 4 GiB GLB limit.
+pub fn export(asset: &Asset, edits: &[Edit], format: OutputFormat) -> Result<Vec<u8>, ExportError> {
     let mut b = Builder {
         bin: Vec::new(),
         json: asset.json.clone(),
@@ -183,33 +143,8 @@ pub fn export(asset: &Asset, edits: &Edits, format: OutputFormat) -> Result<Vec<
     }
     merge_buffers(asset, &mut b);
     embed_images(asset, &mut b);
-    for t in &edits.textures {
-        apply_texture(asset, &mut b, t)?;
-    }
-    for &m in &edits.untextured_materials {
-        let mat = b
-            .json
-            .pointer_mut(&format!("/materials/{m}"))
-            .ok_or(ExportError::BadEdit {
-                what: "material",
-                index: m,
-            })?;
-        if let Some(pbr) = mat
-            .get_mut("pbrMetallicRoughness")
-            .and_then(Value::as_object_mut)
-        {
-            pbr.remove("baseColorTexture");
-            pbr.insert("baseColorFactor".into(), json!([1.0, 1.0, 1.0, 1.0]));
-        }
-        drop_spec_gloss(mat);
-    }
-    for vc in &edits.vertex_colors {
-        let acc = b.push_f32(&vc.colors, "VEC4", false);
-        let prim = primitive_json(asset, &mut b.json, vc.primitive)?;
-        prim["attributes"]["COLOR_0"] = json!(acc);
-    }
-    for r in &edits.refined {
-        apply_refined(asset, &mut b, r)?;
+    for edit in edits {
+        super::apply::apply(asset, &mut b, edit)?;
     }
     clean_extension_lists(&mut b.json);
     finish(b, format)
@@ -252,124 +187,6 @@ fn embed_images(asset: &Asset, b: &mut Builder) {
         img.insert("bufferView".into(), json!(view));
         img.insert("mimeType".into(), json!(asset.images[i].mime_type));
     }
-}
-
-fn primitive_json<'a>(
-    asset: &Asset,
-    json: &'a mut Value,
-    primitive: usize,
-) -> Result<&'a mut Value, ExportError> {
-    let p = asset
-        .primitives
-        .get(primitive)
-        .ok_or(ExportError::BadEdit {
-            what: "primitive",
-            index: primitive,
-        })?;
-    json.pointer_mut(&format!("/meshes/{}/primitives/{}", p.mesh, p.primitive))
-        .ok_or(ExportError::BadEdit {
-            what: "primitive",
-            index: primitive,
-        })
-}
-
-/// Removes the legacy spec-gloss extension from a material that now carries metallic-roughness
-/// color (a viewer that knows the extension would otherwise keep showing the old diffuse).
-fn drop_spec_gloss(mat: &mut Value) {
-    if let Some(ext) = mat.get_mut("extensions").and_then(Value::as_object_mut) {
-        if ext.remove("KHR_materials_pbrSpecularGlossiness").is_some() {
-            let pbr = mat
-                .as_object_mut()
-                .expect("material object")
-                .entry("pbrMetallicRoughness")
-                .or_insert(json!({}));
-            if pbr.get("metallicFactor").is_none() {
-                pbr["metallicFactor"] = json!(0.0);
-            }
-        }
-        if mat["extensions"].as_object().is_some_and(Map::is_empty) {
-            mat.as_object_mut()
-                .expect("material object")
-                .remove("extensions");
-        }
-    }
-}
-
-fn apply_texture(asset: &Asset, b: &mut Builder, t: &MaterialTexture) -> Result<(), ExportError> {
-    let view = b.push_view(&t.png, None);
-    let image = {
-        let images = b.array("images");
-        images.push(json!({"bufferView": view, "mimeType": "image/png", "name": t.name}));
-        images.len() - 1
-    };
-    let sampler = {
-        let samplers = b.array("samplers");
-        samplers.push(json!({"magFilter": 9729, "minFilter": 9987}));
-        samplers.len() - 1
-    };
-    let texture = {
-        let textures = b.array("textures");
-        textures.push(json!({"source": image, "sampler": sampler, "name": t.name}));
-        textures.len() - 1
-    };
-    let mut info = json!({"index": texture});
-    if t.tex_coord != 0 {
-        info["texCoord"] = json!(t.tex_coord);
-    }
-    let material = match t.material {
-        Some(m) => {
-            if b.json.pointer(&format!("/materials/{m}")).is_none() {
-                return Err(ExportError::BadEdit {
-                    what: "material",
-                    index: m,
-                });
-            }
-            m
-        }
-        None => {
-            let materials = b.array("materials");
-            materials.push(json!({"name": t.name}));
-            let m = materials.len() - 1;
-            for &p in &t.primitives {
-                primitive_json(asset, &mut b.json, p)?["material"] = json!(m);
-            }
-            m
-        }
-    };
-    let mat = &mut b.json["materials"][material];
-    drop_spec_gloss(mat);
-    let obj = mat.as_object_mut().expect("material object");
-    let pbr = obj.entry("pbrMetallicRoughness").or_insert(json!({}));
-    pbr["baseColorTexture"] = info;
-    pbr["baseColorFactor"] = json!([1.0, 1.0, 1.0, 1.0]);
-    for &p in &t.primitives {
-        if let Some(attrs) = primitive_json(asset, &mut b.json, p)?
-            .get_mut("attributes")
-            .and_then(Value::as_object_mut)
-        {
-            attrs.remove("COLOR_0");
-        }
-    }
-    Ok(())
-}
-
-fn apply_refined(asset: &Asset, b: &mut Builder, r: &RefinedPrimitive) -> Result<(), ExportError> {
-    let pos = b.push_f32(&r.positions, "VEC3", true);
-    let nrm = r.normals.as_ref().map(|n| b.push_f32(n, "VEC3", false));
-    let col = b.push_f32(&r.colors, "VEC4", false);
-    let idx = b.push_indices(&r.triangles);
-    let prim = primitive_json(asset, &mut b.json, r.primitive)?;
-    let mut attrs = json!({"POSITION": pos, "COLOR_0": col});
-    if let Some(n) = nrm {
-        attrs["NORMAL"] = json!(n);
-    }
-    prim["attributes"] = attrs;
-    prim["indices"] = json!(idx);
-    if let Some(o) = prim.as_object_mut() {
-        o.remove("mode");
-        o.remove("targets");
-    }
-    Ok(())
 }
 
 /// Drops `KHR_texture_transform` and `KHR_materials_pbrSpecularGlossiness` from

@@ -158,7 +158,7 @@ pub fn parse(data: &[u8]) -> Result<Glb<'_>, GlbError> {
                 available,
             });
         }
-        if length % 4 != 0 {
+        if !length.is_multiple_of(4) {
             return Err(GlbError::UnalignedChunk { chunk, length });
         }
         // length <= available <= usize::MAX, so the cast is exact.

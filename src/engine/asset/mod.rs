@@ -2,8 +2,10 @@
 //! model, constraints JSON v1, and export back to glTF.
 
 pub mod accessor;
+mod apply;
 pub mod blobs;
 pub mod constraints;
+pub mod edits;
 pub mod error;
 pub mod export;
 pub mod glb;

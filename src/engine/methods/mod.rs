@@ -1,7 +1,84 @@
-//! The transfer methods, one module per method id.
+//! The transfer methods and the one registry that lists them (DESIGN.md "Layout": methods/).
+//!
+//! A method is a folder under `methods/` holding a type that implements [`Method`], plus one
+//! line in [`Registry::builtin`]. The pipeline, the CLI and the service know methods only through
+//! this trait: their id, the inputs they read ([`InputSpec`]), their params schema, the params
+//! check (run at submission and again inside the job), `run`, and the error categories of
+//! [`MethodError`]. What a method returns ([`MethodOutput`]) says which asset its edits apply to,
+//! the edits ([`crate::engine::asset::edits::Edit`]), extra result files, warnings and its report.
+//!
+//! Shared building blocks: [`align`] (similarity from correspondences), [`correspondence`]
+//! (resolving constraint places onto surfaces), [`output`] (writing an N-channel field into an
+//! asset's UV layout or a vertex attribute) and [`color_output`] (its base-colour form).
 
 pub mod align;
 pub mod color_output;
 pub mod correspondence;
 pub mod meshmatch;
+pub mod output;
 pub mod project;
+
+mod method;
+mod schema;
+
+pub use method::{
+    InputSpec, InputUse, Method, MethodError, MethodInput, MethodOutput, PatternImage, ResultFile,
+};
+
+use crate::engine::asset::constraints::MethodId;
+
+/// The methods a pipeline can run. [`Registry::builtin`] is the list retex ships; tests may build
+/// a registry with more (e.g. a method for an id that is not implemented yet).
+#[derive(Clone)]
+pub struct Registry {
+    methods: Vec<&'static dyn Method>,
+}
+
+impl std::fmt::Debug for Registry {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_list()
+            .entries(self.methods.iter().map(|m| m.id()))
+            .finish()
+    }
+}
+
+impl Registry {
+    /// Every method retex implements: one line per method.
+    pub fn builtin() -> Self {
+        Self {
+            methods: vec![&project::Project, &meshmatch::MeshMatch],
+        }
+    }
+
+    /// The same registry with `method` added (replacing one with the same id).
+    pub fn with(mut self, method: &'static dyn Method) -> Self {
+        self.methods.retain(|m| m.id() != method.id());
+        self.methods.push(method);
+        self
+    }
+
+    /// The method with this id, if implemented.
+    pub fn get(&self, id: MethodId) -> Option<&'static dyn Method> {
+        self.methods.iter().copied().find(|m| m.id() == id)
+    }
+
+    /// Every registered method, in registration order.
+    pub fn methods(&self) -> impl Iterator<Item = &'static dyn Method> + '_ {
+        self.methods.iter().copied()
+    }
+
+    /// The implemented ids, comma-separated (`project, meshmatch`), for messages.
+    pub fn available(&self) -> String {
+        self.methods
+            .iter()
+            .map(|m| m.id().as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+}
+
+impl Default for Registry {
+    fn default() -> Self {
+        Self::builtin()
+    }
+}

@@ -106,6 +106,57 @@ pub fn encode_png_srgb(pixels: &[[f32; 4]], width: u32, height: u32) -> Vec<u8> 
     try_encode_png_srgb(pixels, width, height).unwrap_or_default()
 }
 
+/// Linear values in [0, 1] → 8-bit PNG with `channels` (1 gray, 2 gray+alpha, 3 RGB, 4 RGBA)
+/// per texel, no transfer function (normal maps, occlusion, data). Values are clamped and
+/// rounded; NaN is 0. Returns an empty `Vec` when the sizes do not fit (`texels.len()` must be
+/// `width × height × channels`, all non-zero).
+pub fn encode_png_linear8(width: u32, height: u32, channels: u8, texels: &[f32]) -> Vec<u8> {
+    let color = match channels {
+        1 => ExtendedColorType::L8,
+        2 => ExtendedColorType::La8,
+        3 => ExtendedColorType::Rgb8,
+        4 => ExtendedColorType::Rgba8,
+        _ => return Vec::new(),
+    };
+    let n = width as u64 * height as u64 * channels as u64;
+    if width == 0 || height == 0 || texels.len() as u64 != n {
+        return Vec::new();
+    }
+    let raw: Vec<u8> = texels.iter().map(|&v| alpha8(v)).collect();
+    let mut out = Vec::new();
+    match PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Adaptive)
+        .write_image(&raw, width, height, color)
+    {
+        Ok(()) => out,
+        Err(_) => Vec::new(),
+    }
+}
+
+/// Values in [0, 1] → 16-bit grayscale PNG (clamped, rounded to 1/65535; NaN is 0), e.g. a
+/// displacement map. Returns an empty `Vec` when `texels.len() != width × height` or a size is 0.
+pub fn encode_png_gray16(width: u32, height: u32, texels: &[f32]) -> Vec<u8> {
+    if width == 0 || height == 0 || texels.len() as u64 != width as u64 * height as u64 {
+        return Vec::new();
+    }
+    let mut raw = Vec::with_capacity(texels.len() * 2);
+    for &v in texels {
+        let q = if v.is_nan() {
+            0u16
+        } else {
+            (v.clamp(0.0, 1.0) * 65535.0 + 0.5) as u16
+        };
+        // The PNG encoder takes 16-bit samples in native byte order.
+        raw.extend_from_slice(&q.to_ne_bytes());
+    }
+    let mut out = Vec::new();
+    match PngEncoder::new_with_quality(&mut out, CompressionType::Fast, FilterType::Adaptive)
+        .write_image(&raw, width, height, ExtendedColorType::L16)
+    {
+        Ok(()) => out,
+        Err(_) => Vec::new(),
+    }
+}
+
 /// Decodes PNG bytes to `(width, height, linear RGBA)`, row-major from the top-left.
 ///
 /// # Errors

@@ -16,7 +16,16 @@ use sha2::{Digest, Sha256};
 use super::problem::ApiError;
 use crate::engine::asset::constraints::{Constraints, MAX_CONSTRAINTS_BYTES};
 use crate::engine::asset::{load_with, BlobSet, Decode};
+use crate::engine::methods::{InputUse, Registry};
+use crate::engine::pipeline::checked_method;
 use crate::service::config::ServeConfig;
+use crate::service::problem_table::{texture_size_problem, transfer_problem};
+
+/// The multipart parts a submission may have.
+const PARTS: [&str; 5] = ["source", "target", "constraints", "pattern", "source_base"];
+
+/// The constraints of a submission without a `constraints` part.
+const DEFAULT_CONSTRAINTS: &[u8] = br#"{"version": 1}"#;
 
 /// One uploaded file, already on disk.
 #[derive(Debug, Clone)]
@@ -39,11 +48,13 @@ pub struct UploadModel {
 /// A complete, validated submission, still in temporary files.
 #[derive(Debug)]
 pub struct Upload {
-    /// The textured source.
-    pub source: UploadModel,
+    /// The source model (absent for methods that do not read one).
+    pub source: Option<UploadModel>,
     /// The target.
     pub target: UploadModel,
-    /// The constraints document, verbatim.
+    /// The smooth base of the source, if given and read by the method.
+    pub source_base: Option<UploadModel>,
+    /// The constraints document, verbatim (`{"version": 1}` when the part was left out).
     pub constraints_bytes: Vec<u8>,
     /// The parsed constraints.
     pub constraints: Constraints,
@@ -163,19 +174,152 @@ async fn save_part(
     Ok((len, hasher.finalize().into()))
 }
 
-/// Reads the whole multipart body into temporary files and validates it.
+/// The parts of a multipart body as received, before grouping and validation.
+#[derive(Default)]
+struct Received {
+    source: Vec<UploadFile>,
+    target: Vec<UploadFile>,
+    source_base: Vec<UploadFile>,
+    constraints: Option<PathBuf>,
+    pattern: Option<UploadFile>,
+}
+
+impl Received {
+    fn add(&mut self, part: &str, file: UploadFile) -> Result<(), ApiError> {
+        let twice = |what: &str| {
+            Err(ApiError::bad_request(
+                "duplicate-part",
+                what,
+                format!("{what} given twice"),
+            ))
+        };
+        match part {
+            "source" => self.source.push(file),
+            "target" => self.target.push(file),
+            "source_base" => self.source_base.push(file),
+            "constraints" if self.constraints.is_some() => return twice(part),
+            "constraints" => self.constraints = Some(file.path),
+            _ if self.pattern.is_some() => return twice(part),
+            _ => self.pattern = Some(file),
+        }
+        Ok(())
+    }
+}
+
+/// Reads the whole multipart body into temporary files and validates it: the constraints parse,
+/// the method is implemented and its params pass its check, the parts it needs are there, and
+/// every model and image loads under the limits.
 pub async fn read_upload(
-    mut multipart: Multipart,
+    multipart: Multipart,
     config: &ServeConfig,
+    registry: &Registry,
     temp_root: &Path,
 ) -> Result<Upload, ApiError> {
     std::fs::create_dir_all(temp_root).map_err(ApiError::internal)?;
     let temp = std::sync::Arc::new(TempFiles::new(temp_root));
     let mut request = Sha256::new();
-    let mut source = Vec::new();
-    let mut target = Vec::new();
-    let mut constraints: Option<PathBuf> = None;
-    let mut pattern: Option<UploadFile> = None;
+    let received = receive_parts(multipart, config, &temp, &mut request).await?;
+    let constraints_bytes = match &received.constraints {
+        Some(path) => std::fs::read(path).map_err(ApiError::internal)?,
+        None => DEFAULT_CONSTRAINTS.to_vec(),
+    };
+    let parsed =
+        Constraints::from_json(&constraints_bytes).map_err(|e| ApiError::constraints(&e))?;
+    if parsed.output.texture_size > config.max_texture_size {
+        return Err(ApiError::from_problem(texture_size_problem(
+            parsed.output.texture_size,
+            config.max_texture_size,
+        )));
+    }
+    let method = checked_method(registry, &parsed)
+        .map_err(|e| ApiError::from_problem(transfer_problem(&e)))?;
+    let spec = method.inputs();
+    let missing = |part: &str| {
+        ApiError::bad_request(
+            "missing-part",
+            part,
+            format!(
+                "the multipart body has no {part:?} part (method {} needs it)",
+                parsed.method.as_str()
+            ),
+        )
+    };
+    if received.target.is_empty() {
+        return Err(missing("target"));
+    }
+    let wanted = |given: bool, used: InputUse, part: &str| match used {
+        InputUse::Required if !given => Err(missing(part)),
+        InputUse::Unused => Ok(false),
+        _ => Ok(given),
+    };
+    let use_source = wanted(!received.source.is_empty(), spec.source, "source")?;
+    let use_base = wanted(
+        !received.source_base.is_empty(),
+        spec.source_base,
+        "source_base",
+    )?;
+    let use_pattern = wanted(received.pattern.is_some(), spec.pattern, "pattern")?;
+
+    let work = temp.clone();
+    let cfg = config.clone();
+    let pattern = received.pattern.filter(|_| use_pattern);
+    let pattern_check = pattern.clone();
+    let (source_files, target_files, base_files) = (
+        Some(received.source).filter(|_| use_source),
+        received.target,
+        Some(received.source_base).filter(|_| use_base),
+    );
+    let validated = tokio::task::spawn_blocking(move || -> Result<_, ApiError> {
+        let group = |side: &str, files: Option<Vec<UploadFile>>| {
+            files.map(|f| assemble(side, f, &work, &cfg)).transpose()
+        };
+        let source = group("source", source_files)?;
+        let target = assemble("target", target_files, &work, &cfg)?;
+        let base = group("source_base", base_files)?;
+        if let Some(p) = &pattern_check {
+            check_pattern(&p.path, &cfg)?;
+        }
+        // The models load under the limits, in parallel (the loader itself uses rayon).
+        let check = |side: &str, m: &Option<UploadModel>| {
+            m.as_ref().map_or(Ok(()), |m| validate_model(side, m, &cfg))
+        };
+        let (a, (b, c)) = rayon::join(
+            || check("source", &source),
+            || {
+                rayon::join(
+                    || validate_model("target", &target, &cfg),
+                    || check("source_base", &base),
+                )
+            },
+        );
+        a?;
+        b?;
+        c?;
+        Ok((source, target, base))
+    })
+    .await
+    .map_err(ApiError::internal)??;
+    Ok(Upload {
+        source: validated.0,
+        target: validated.1,
+        source_base: validated.2,
+        constraints_bytes,
+        constraints: parsed,
+        pattern,
+        request_hash: hex::encode(request.finalize()),
+        _temp: std::sync::Arc::try_unwrap(temp)
+            .map_err(|_| ApiError::internal("temp files still shared"))?,
+    })
+}
+
+/// Streams every part to a temporary file under its cap, hashing names and contents.
+async fn receive_parts(
+    mut multipart: Multipart,
+    config: &ServeConfig,
+    temp: &TempFiles,
+    request: &mut Sha256,
+) -> Result<Received, ApiError> {
+    let mut received = Received::default();
     let mut count = 0usize;
     while let Some(mut field) = multipart
         .next_field()
@@ -183,18 +327,18 @@ pub async fn read_upload(
         .map_err(|e| multipart_error(e, config))?
     {
         let part = field.name().unwrap_or_default().to_string();
-        if !matches!(
-            part.as_str(),
-            "source" | "target" | "constraints" | "pattern"
-        ) {
+        if !PARTS.contains(&part.as_str()) {
             return Err(ApiError::bad_request(
                 "unknown-part",
                 &part,
-                format!("unknown part {part:?}: expected source, target, constraints, pattern"),
+                format!(
+                    "unknown part {part:?}: expected one of {}",
+                    PARTS.join(", ")
+                ),
             ));
         }
         count += 1;
-        if count > 2 * config.max_files + 2 {
+        if count > 3 * config.max_files + 2 {
             return Err(ApiError::new(
                 StatusCode::PAYLOAD_TOO_LARGE,
                 "too-many-files",
@@ -219,92 +363,9 @@ pub async fn read_upload(
         for piece in [part.as_bytes(), &[0], name.as_bytes(), &[0], &digest] {
             request.update(piece);
         }
-        let file = UploadFile { name, path };
-        match part.as_str() {
-            "source" => source.push(file),
-            "target" => target.push(file),
-            "constraints" | "pattern" if constraints.is_some() && part == "constraints" => {
-                return Err(ApiError::bad_request(
-                    "duplicate-part",
-                    &part,
-                    "constraints given twice",
-                ))
-            }
-            "constraints" => constraints = Some(file.path),
-            _ if pattern.is_some() => {
-                return Err(ApiError::bad_request(
-                    "duplicate-part",
-                    &part,
-                    "pattern given twice",
-                ))
-            }
-            _ => pattern = Some(file),
-        }
+        received.add(&part, UploadFile { name, path })?;
     }
-    let missing = |part: &str| {
-        ApiError::bad_request(
-            "missing-part",
-            part,
-            format!("the multipart body has no {part:?} part"),
-        )
-    };
-    if source.is_empty() {
-        return Err(missing("source"));
-    }
-    if target.is_empty() {
-        return Err(missing("target"));
-    }
-    // Without a constraints part the job runs with the defaults (method project).
-    let constraints_bytes = match constraints {
-        Some(path) => std::fs::read(&path).map_err(ApiError::internal)?,
-        None => br#"{"version":1}"#.to_vec(),
-    };
-    let parsed =
-        Constraints::from_json(&constraints_bytes).map_err(|e| ApiError::constraints(&e))?;
-    if parsed.output.texture_size > config.max_texture_size {
-        return Err(ApiError::new(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            "texture-size-over-limit",
-            "Texture size over the limit",
-            format!(
-                "output.texture_size {} exceeds max_texture_size = {}",
-                parsed.output.texture_size, config.max_texture_size
-            ),
-        )
-        .field("constraints.output.texture_size")
-        .limit("max_texture_size", config.max_texture_size));
-    }
-
-    let work = temp.clone();
-    let cfg = config.clone();
-    let pattern_check = pattern.clone();
-    let validated = tokio::task::spawn_blocking(move || -> Result<_, ApiError> {
-        let source = assemble("source", source, &work, &cfg)?;
-        let target = assemble("target", target, &work, &cfg)?;
-        if let Some(p) = &pattern_check {
-            check_pattern(&p.path, &cfg)?;
-        }
-        // Both models load under the limits, in parallel (the loader itself uses rayon).
-        let (a, b) = rayon::join(
-            || validate_model("source", &source, &cfg),
-            || validate_model("target", &target, &cfg),
-        );
-        a?;
-        b?;
-        Ok((source, target))
-    })
-    .await
-    .map_err(ApiError::internal)??;
-    Ok(Upload {
-        source: validated.0,
-        target: validated.1,
-        constraints_bytes,
-        constraints: parsed,
-        pattern,
-        request_hash: hex::encode(request.finalize()),
-        _temp: std::sync::Arc::try_unwrap(temp)
-            .map_err(|_| ApiError::internal("temp files still shared"))?,
-    })
+    Ok(received)
 }
 
 fn is_zip(file: &UploadFile) -> bool {

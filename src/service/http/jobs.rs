@@ -184,7 +184,13 @@ async fn submit_multipart(
     if queue_depth(state).await? >= state.config.queue_len {
         return Err(queue_full(state));
     }
-    let upload = read_upload(multipart, &state.config, &state.blobs.temp_dir()).await?;
+    let upload = read_upload(
+        multipart,
+        &state.config,
+        &state.registry,
+        &state.blobs.temp_dir(),
+    )
+    .await?;
     let id = Uuid::now_v7();
     let record = JobRecord {
         id,
@@ -207,8 +213,14 @@ async fn submit_multipart(
     let outcome = blocking(move || {
         let mut record = record;
         let stored = (|| {
-            let source = model_files("source", id, &upload.source, blobs.as_ref())?;
+            let optional = |side: &str, m: &Option<_>| {
+                m.as_ref()
+                    .map(|m| model_files(side, id, m, blobs.as_ref()))
+                    .transpose()
+            };
+            let source = optional("source", &upload.source)?;
             let target = model_files("target", id, &upload.target, blobs.as_ref())?;
+            let source_base = optional("source_base", &upload.source_base)?;
             let constraints = format!("jobs/{id}/inputs/constraints.json");
             blobs.put(&constraints, &upload.constraints_bytes)?;
             let pattern = match &upload.pattern {
@@ -225,6 +237,7 @@ async fn submit_multipart(
             record.inputs = JobInputs {
                 source,
                 target,
+                source_base,
                 constraints,
                 pattern,
             };

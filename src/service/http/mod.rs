@@ -21,6 +21,7 @@ use tokio::sync::watch;
 use tower_http::timeout::RequestBodyTimeoutLayer;
 use tower_http::trace::TraceLayer;
 
+use crate::engine::methods::Registry;
 use crate::service::config::ServeConfig;
 use crate::service::jobs::runner::{Runner, RunnerConfig};
 use crate::service::store::fs::FsBlobStore;
@@ -52,6 +53,8 @@ pub struct AppState {
     pub blobs: Arc<dyn BlobStore>,
     /// The worker pool.
     pub runner: Arc<Runner>,
+    /// The methods jobs may ask for (checked at submission).
+    pub registry: Registry,
     /// Request counters.
     pub metrics: Arc<metrics::Metrics>,
     /// Becomes `true` when the server shuts down.
@@ -157,8 +160,14 @@ pub struct Server {
     handle: tokio::task::JoinHandle<std::io::Result<()>>,
 }
 
-/// Opens the store under `config.data_dir`, starts the runner and binds the listener.
+/// Opens the store under `config.data_dir`, starts the runner and binds the listener, with the
+/// built-in methods.
 pub async fn start(config: ServeConfig) -> Result<Server, String> {
+    start_with(config, Registry::builtin()).await
+}
+
+/// As [`start`], with the methods of `registry` (tests register extra methods this way).
+pub async fn start_with(config: ServeConfig, registry: Registry) -> Result<Server, String> {
     config.validate().map_err(|e| e.to_string())?;
     std::fs::create_dir_all(&config.data_dir)
         .map_err(|e| format!("data dir {}: {e}", config.data_dir.display()))?;
@@ -173,6 +182,7 @@ pub async fn start(config: ServeConfig) -> Result<Server, String> {
             limits: config.limits.clone(),
             max_texture_size: config.max_texture_size,
             progress_interval: Duration::from_millis(config.progress_interval_ms),
+            registry: registry.clone(),
         },
         jobs.clone(),
         blobs.clone(),
@@ -188,6 +198,7 @@ pub async fn start(config: ServeConfig) -> Result<Server, String> {
         jobs,
         blobs,
         runner,
+        registry,
         metrics: Arc::default(),
         shutdown,
     };

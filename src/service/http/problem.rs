@@ -3,8 +3,9 @@
 //! such as `constraints.output.texture_size`, or a glTF path such as
 //! `source.meshes[0].primitives[0].indices`) and the `limit` that was exceeded, where one was.
 //!
-//! This file is the one table from engine and store errors to problem types: ingest errors by
-//! [`IngestError::kind`], constraint errors by their JSON path, store errors by variant.
+//! Engine errors (ingest, constraints, methods) map through the one table,
+//! [`crate::service::problem_table`], so a submission's answer and a failed job's `error` agree;
+//! this file adds the HTTP-only problems (store errors, body limits, malformed requests).
 
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
@@ -13,6 +14,7 @@ use serde_json::json;
 use crate::engine::asset::constraints::ConstraintsError;
 use crate::engine::asset::IngestError;
 use crate::service::model::Problem;
+use crate::service::problem_table;
 use crate::service::store::StoreError;
 
 /// Media type of problem bodies.
@@ -104,40 +106,25 @@ impl ApiError {
         Self::new(StatusCode::BAD_REQUEST, kind, "Bad request", detail).field(field)
     }
 
-    /// 422 for constraints that cannot be used; the field is `constraints.<path>`.
-    pub fn constraints(e: &ConstraintsError) -> Self {
-        let field = if e.path == "." || e.path.is_empty() {
-            "constraints".to_string()
-        } else {
-            format!("constraints.{}", e.path)
-        };
-        Self::new(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            "invalid-constraints",
-            "Invalid constraints",
-            e.to_string(),
-        )
-        .field(field)
+    /// A problem from the one table.
+    pub fn from_problem(problem: Problem) -> Self {
+        if problem.status >= 500 {
+            tracing::error!(detail = %problem.detail, kind = %problem.kind, "internal error");
+        }
+        Self {
+            problem: Box::new(problem),
+            retry_after: None,
+        }
     }
 
-    /// 422 (or 413 for size limits) for a model that does not load; `side` is the part name.
+    /// 422 for constraints that cannot be used; the field is `constraints.<path>`.
+    pub fn constraints(e: &ConstraintsError) -> Self {
+        Self::from_problem(problem_table::constraints_problem(e))
+    }
+
+    /// 422 (or 413 for size limits) for an input that does not load; `side` is the part name.
     pub fn ingest(side: &str, e: &IngestError) -> Self {
-        let (field, limit) = ingest_location(e);
-        let status = match e {
-            IngestError::InputTooLarge { .. } => StatusCode::PAYLOAD_TOO_LARGE,
-            IngestError::Internal(_) => StatusCode::INTERNAL_SERVER_ERROR,
-            _ => StatusCode::UNPROCESSABLE_ENTITY,
-        };
-        let field = match field {
-            Some(path) => format!("{side}.{path}"),
-            None => side.to_string(),
-        };
-        let mut err =
-            Self::new(status, e.kind(), "Invalid model", format!("{side}: {e}")).field(field);
-        if let Some((name, value)) = limit {
-            err = err.limit(name, value);
-        }
-        err
+        Self::from_problem(problem_table::ingest_problem(side, e))
     }
 
     /// Maps a storage error.
@@ -171,68 +158,6 @@ impl ApiError {
             ),
             other => Self::internal(other),
         }
-    }
-}
-
-/// The glTF path (without the side) and the exceeded limit of an ingest error.
-fn ingest_location(e: &IngestError) -> (Option<String>, Option<(&'static str, u64)>) {
-    use IngestError::*;
-    match e {
-        MissingMain { name } | EmptyFile { name } => (Some(name.clone()), None),
-        InputTooLarge { max, .. } => (None, Some(("max_input_bytes", *max))),
-        JsonTooLarge { max, .. } => (None, Some(("max_json_bytes", *max))),
-        InvalidDocument { path, .. } => (Some(path.clone()), None),
-        UnsupportedVersion { .. } => (Some("asset.version".into()), None),
-        UnsupportedExtension(_) => (Some("extensionsRequired".into()), None),
-        ForbiddenUri { what, .. } | InvalidUri { what, .. } | MissingFile { what, .. } => {
-            (Some(format!("{what}.uri")), None)
-        }
-        DataUriTooLarge { what, max, .. } => (
-            Some(format!("{what}.uri")),
-            Some(("max_data_uri_bytes", *max)),
-        ),
-        BufferWithoutData { buffer } | BufferLengthMismatch { buffer, .. } => {
-            (Some(format!("buffers[{buffer}]")), None)
-        }
-        UnresolvedReference { path, .. }
-        | WrongAccessorType { path, .. }
-        | UnequalCount { path, .. }
-        | MissingPosition { path }
-        | IndexOutOfRange { path, .. }
-        | PrimitiveRestartIndex { path, .. }
-        | NonFinite { path, .. } => (Some(path.clone()), None),
-        BufferViewOutOfRange { view, .. } | InvalidStride { view, .. } => {
-            (Some(format!("bufferViews[{view}]")), None)
-        }
-        AccessorOutOfRange { accessor, .. }
-        | StrideTooSmall { accessor, .. }
-        | InvalidAccessor { accessor, .. } => (Some(format!("accessors[{accessor}]")), None),
-        TooManyVertices { max, .. } => (None, Some(("max_vertices", *max))),
-        TooManyTriangles { max, .. } => (None, Some(("max_triangles", *max))),
-        InvalidNodeHierarchy { node, .. } | NonFiniteTransform { node } => {
-            (Some(format!("nodes[{node}]")), None)
-        }
-        NodeTooDeep { node, max, .. } => (
-            Some(format!("nodes[{node}]")),
-            Some(("max_node_depth", *max)),
-        ),
-        ImageTooLarge {
-            image,
-            width,
-            height,
-            max,
-        } => {
-            let name = if u64::from(*width).max(u64::from(*height)) > *max {
-                "max_image_side"
-            } else {
-                "max_image_pixels"
-            };
-            (Some(format!("images[{image}]")), Some((name, *max)))
-        }
-        UnrecognizedImage { image } | ImageDecode { image, .. } | ImageWithoutData { image } => {
-            (Some(format!("images[{image}]")), None)
-        }
-        _ => (None, None),
     }
 }
 

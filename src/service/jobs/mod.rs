@@ -1,5 +1,4 @@
 //! Jobs: the runner that claims jobs from the store and executes them on the engine's rayon
-//! pool ([`runner`]), and the table from engine errors to problem objects ([`problem`]).
+//! pool ([`runner`]). Engine errors become problems through [`crate::service::problem_table`].
 
-pub mod problem;
 pub mod runner;

@@ -40,12 +40,17 @@ use sha2::{Digest, Sha256};
 use tokio::sync::{broadcast, oneshot, watch, Notify};
 use uuid::Uuid;
 
-use super::problem::{constraints_problem, internal_problem, panic_problem, transfer_problem};
 use crate::engine::asset::constraints::{Constraints, OutputFormat};
 use crate::engine::asset::{BlobSet, IngestLimits};
 use crate::engine::control::{Control, Progress};
-use crate::engine::pipeline::{transfer, ModelInput, TransferError, TransferInput};
+use crate::engine::methods::Registry;
+use crate::engine::pipeline::{
+    transfer_with, ImageInput, ModelInput, TransferError, TransferInput,
+};
 use crate::service::model::{ArtifactRef, JobProgress, JobRecord, JobStatus, ModelFiles, Problem};
+use crate::service::problem_table::{
+    constraints_problem, internal_problem, panic_problem, texture_size_problem, transfer_problem,
+};
 use crate::service::store::{BlobStore, Finish, JobStore, StoreError};
 
 /// Store writes of progress are at most this frequent per job.
@@ -94,6 +99,8 @@ pub struct RunnerConfig {
     pub max_texture_size: u32,
     /// How often a running job's progress is sampled. Default: 100 ms.
     pub progress_interval: Duration,
+    /// The methods jobs may run. Default: [`Registry::builtin`].
+    pub registry: Registry,
 }
 
 impl Default for RunnerConfig {
@@ -104,6 +111,7 @@ impl Default for RunnerConfig {
             limits: IngestLimits::default(),
             max_texture_size: 8192,
             progress_interval: Duration::from_millis(100),
+            registry: Registry::builtin(),
         }
     }
 }
@@ -453,6 +461,7 @@ impl Runner {
             blobs: Arc::clone(&self.blobs),
             limits: self.config.limits.clone(),
             max_texture_size: self.config.max_texture_size,
+            registry: self.config.registry.clone(),
             hook: locked(&self.hook).clone(),
         };
         let engine_job = job.clone();
@@ -592,6 +601,7 @@ struct EngineCtx {
     blobs: Arc<dyn BlobStore>,
     limits: IngestLimits,
     max_texture_size: u32,
+    registry: Registry,
     hook: Option<EngineHook>,
 }
 
@@ -608,14 +618,27 @@ fn execute(ctx: &EngineCtx, job: &JobRecord, control: &Control) -> Outcome {
     if let Some(hook) = &ctx.hook {
         hook(job);
     }
+    let read = |files: &Option<ModelFiles>| -> Result<Option<BlobSet>, StoreError> {
+        files
+            .as_ref()
+            .map(|f| read_model(ctx.blobs.as_ref(), f))
+            .transpose()
+    };
     let inputs = (|| -> Result<_, StoreError> {
+        let source = read(&job.inputs.source)?;
+        let pattern = match &job.inputs.pattern {
+            Some(key) => Some(ctx.blobs.get(key)?),
+            None => None,
+        };
         Ok((
-            read_model(ctx.blobs.as_ref(), &job.inputs.source)?,
+            source,
             read_model(ctx.blobs.as_ref(), &job.inputs.target)?,
+            read(&job.inputs.source_base)?,
+            pattern,
             ctx.blobs.get(&job.inputs.constraints)?,
         ))
     })();
-    let (source, target, constraints) = match inputs {
+    let (source, target, source_base, pattern, constraints) = match inputs {
         Ok(i) => i,
         Err(e) => return Outcome::Failed(internal_problem(format!("reading the inputs: {e}"))),
     };
@@ -624,36 +647,44 @@ fn execute(ctx: &EngineCtx, job: &JobRecord, control: &Control) -> Outcome {
         Err(e) => return Outcome::Failed(constraints_problem(&e)),
     };
     if constraints.output.texture_size > ctx.max_texture_size {
-        return Outcome::Failed(Problem {
-            kind: "/problems/texture-size-limit".into(),
-            title: "the output texture size is over the limit".into(),
-            status: 422,
-            detail: format!(
-                "output.texture_size {} is over the limit of {}",
-                constraints.output.texture_size, ctx.max_texture_size
-            ),
-            field: Some("constraints.output.texture_size".into()),
-            limit: Some(ctx.max_texture_size.into()),
-        });
+        return Outcome::Failed(texture_size_problem(
+            constraints.output.texture_size,
+            ctx.max_texture_size,
+        ));
     }
-    let input = TransferInput {
-        source: ModelInput {
-            main: &job.inputs.source.main,
-            blobs: &source,
-        },
-        target: ModelInput {
+    let mut input = TransferInput::new(
+        ModelInput {
             main: &job.inputs.target.main,
             blobs: &target,
         },
         constraints,
-        limits: ctx.limits.clone(),
-    };
-    let out = match transfer(&input, control) {
+    )
+    .with_limits(ctx.limits.clone());
+    if let (Some(files), Some(blobs)) = (&job.inputs.source, &source) {
+        input = input.with_source(ModelInput {
+            main: &files.main,
+            blobs,
+        });
+    }
+    if let (Some(files), Some(blobs)) = (&job.inputs.source_base, &source_base) {
+        input = input.with_source_base(ModelInput {
+            main: &files.main,
+            blobs,
+        });
+    }
+    if let Some(bytes) = &pattern {
+        input = input.with_pattern(ImageInput {
+            name: "pattern",
+            bytes,
+        });
+    }
+    let out = match transfer_with(&ctx.registry, &input, control) {
         Ok(out) => out,
         Err(TransferError::Cancelled) => return Outcome::Canceled,
         Err(e) => return Outcome::Failed(transfer_problem(&e)),
     };
-    drop((source, target));
+    drop(input);
+    drop((source, target, source_base, pattern));
     if control.is_cancelled() {
         // Canceled after the engine's last check: the client already sees `canceled`.
         return Outcome::Canceled;
@@ -665,7 +696,7 @@ fn execute(ctx: &EngineCtx, job: &JobRecord, control: &Control) -> Outcome {
     let mut files: Vec<(String, String, Vec<u8>)> = Vec::with_capacity(out.artifacts.len() + 1);
     files.push((name.into(), media_type.into(), out.model));
     for a in out.artifacts {
-        files.push((a.name, a.media_type.to_string(), a.bytes));
+        files.push((a.name, a.media_type, a.bytes));
     }
     let mut artifacts = Vec::with_capacity(files.len());
     for (name, media_type, bytes) in files {

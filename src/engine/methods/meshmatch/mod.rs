@@ -39,6 +39,76 @@ use features::{AffinityParams, AutomaticFeatureParams};
 pub use example::ExampleMask;
 pub use run::run;
 
+use super::{InputSpec, Method, MethodError, MethodInput, MethodOutput, ResultFile};
+use crate::engine::asset::constraints::MethodId;
+use crate::engine::control::Control;
+
+/// The `meshmatch` method (registry entry).
+pub struct MeshMatch;
+
+impl Method for MeshMatch {
+    fn id(&self) -> MethodId {
+        MethodId::Meshmatch
+    }
+
+    fn inputs(&self) -> InputSpec {
+        InputSpec::SOURCE_AND_TARGET
+    }
+
+    fn params_schema(&self) -> serde_json::Value {
+        super::schema::params_def("meshmatch_params")
+    }
+
+    fn check(&self, constraints: &Constraints) -> Result<(), ConstraintsError> {
+        MeshMatchParams::from_constraints(constraints).map(drop)
+    }
+
+    fn run(&self, input: &MethodInput<'_>, control: &Control) -> Result<MethodOutput, MethodError> {
+        let params = MeshMatchParams::from_constraints(input.constraints)?;
+        let (edits, report, nnf) = run(
+            input.source()?,
+            input.target,
+            input.constraints,
+            &params,
+            control,
+        )
+        .map_err(MethodError::from)?;
+        let mut out = MethodOutput::target(edits, &report);
+        out.warnings = report.warnings;
+        if let Some(bytes) = nnf {
+            out.files.push(ResultFile {
+                name: "nnf.bin".into(),
+                media_type: "application/octet-stream".into(),
+                bytes,
+            });
+        }
+        Ok(out)
+    }
+}
+
+impl From<MeshMatchError> for MethodError {
+    fn from(e: MeshMatchError) -> Self {
+        if e.is_cancelled() {
+            return MethodError::Cancelled;
+        }
+        match e {
+            MeshMatchError::Param { name, message } => {
+                MethodError::Constraints(ConstraintsError::new(format!("params.{name}"), message))
+            }
+            MeshMatchError::Constraints(c) => MethodError::Constraints(c),
+            MeshMatchError::Mesh { side, source } => MethodError::Mesh { side, source },
+            e @ (MeshMatchError::Hierarchy(_)
+            | MeshMatchError::Resample(_)
+            | MeshMatchError::Features(_)) => MethodError::UnusableInput {
+                field: None,
+                kind: "unusable-mesh",
+                message: format!("a mesh cannot be prepared for matching: {e}"),
+            },
+            other => MethodError::Internal(format!("meshmatch: {other}")),
+        }
+    }
+}
+
 /// Largest synthesis mesh (memory: about 3 KiB per vertex and mesh for fans, charts and levels).
 pub const MAX_SAMPLES: usize = 262_144;
 

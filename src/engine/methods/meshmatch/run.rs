@@ -11,7 +11,7 @@
 use serde::Serialize;
 
 use crate::engine::asset::constraints::Constraints;
-use crate::engine::asset::export::Edits;
+use crate::engine::asset::edits::Edit;
 use crate::engine::asset::Asset;
 use crate::engine::control::Control;
 use crate::engine::mesh::{build_surface, Surface, WeldParams};
@@ -45,8 +45,6 @@ pub struct MeshMatchReport {
     pub output: ColorOutputReport,
     /// Things the user should know.
     pub warnings: Vec<String>,
-    /// Wall-clock milliseconds per stage.
-    pub timings_ms: Vec<(String, f64)>,
 }
 
 /// The synthesized colours on the target synthesis mesh, as a field over the target surface.
@@ -102,6 +100,9 @@ impl ColorField for SynthesizedField<'_> {
     }
 }
 
+/// The edits for the target, the report and the NNF artifact bytes.
+pub type RunOutput = (Vec<Edit>, MeshMatchReport, Option<Vec<u8>>);
+
 /// Runs `meshmatch`: returns the edits for the target, the report and the NNF artifact bytes.
 ///
 /// # Errors
@@ -112,18 +113,12 @@ pub fn run(
     constraints: &Constraints,
     params: &MeshMatchParams,
     control: &Control,
-) -> Result<(Edits, MeshMatchReport, Option<Vec<u8>>), MeshMatchError> {
-    let mut timings = Vec::new();
-    let mut clock = std::time::Instant::now();
-    let mut lap = |name: &str, timings: &mut Vec<(String, f64)>| {
-        let now = std::time::Instant::now();
-        timings.push((name.to_string(), (now - clock).as_secs_f64() * 1e3));
-        clock = now;
-    };
+) -> Result<RunOutput, MeshMatchError> {
     let mut warnings = Vec::new();
     let weld = WeldParams {
         relative_tolerance: params.weld_tolerance,
     };
+    let span = control.span(0.0, 0.02);
     control.stage("surface", 0)?;
     let by_example = params.example.is_some();
     let tgt_surface = build_surface(target, &weld).map_err(|source| MeshMatchError::Mesh {
@@ -182,8 +177,9 @@ pub fn run(
             });
         }
     }
-    lap("surface", &mut timings);
+    drop(span);
 
+    let span = control.span(0.02, 0.06);
     control.stage("synthesis meshes", 0)?;
     let tgt_mesh = synthesis_mesh(&tgt_surface, params.samples, control)?;
     let src_mesh = if by_example {
@@ -200,8 +196,9 @@ pub fn run(
     for p in scaled_source.positions.iter_mut() {
         *p = p.map(|x| x * scale);
     }
-    lap("synthesis_meshes", &mut timings);
+    drop(span);
 
+    let span = control.span(0.06, 0.9);
     let out = synthesize(
         &MatchInput {
             source: &scaled_source,
@@ -214,7 +211,7 @@ pub fn run(
         constraints.seed,
         control,
     )?;
-    lap("synthesize", &mut timings);
+    drop(span);
 
     let nnf_bytes = params.write_nnf.then(|| {
         NnfFile {
@@ -239,6 +236,7 @@ pub fn run(
             sampler: MaterialSampler::new(target),
         }),
     };
+    let _span = control.span(0.9, 1.0);
     let (edits, output) = write_color_field(
         target,
         constraints,
@@ -246,7 +244,6 @@ pub fn run(
         &field,
         control,
     )?;
-    lap("output", &mut timings);
     let report = MeshMatchReport {
         target_samples: field.surface.vertex_count(),
         source_samples: src_mesh.surface.vertex_count(),
@@ -256,7 +253,6 @@ pub fn run(
         synthesis: out.report,
         output,
         warnings,
-        timings_ms: timings,
     };
     Ok((edits, report, nnf_bytes))
 }

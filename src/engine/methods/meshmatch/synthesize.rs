@@ -286,6 +286,7 @@ pub fn synthesize(
         });
     }
     let by_example = input.painted.is_some();
+    let span = control.span(0.0, 0.08);
     control.stage("meshmatch: hierarchy", 0)?;
     let up = params.hks.up;
     let src_levels = MeshLevels::build(input.source, params.min_vertices, up, control)?;
@@ -301,11 +302,14 @@ pub fn synthesize(
     };
     let tgt_levels = tgt_owned.as_ref().unwrap_or(&src_levels);
     let hierarchy_ms = ms(start);
+    drop(span);
 
     let t_features = Instant::now();
+    let span = control.span(0.08, 0.15);
     control.stage("meshmatch: features", 0)?;
     let shapes = shape_features(input, &src_levels, tgt_levels, params, control)?;
     let features_ms = ms(t_features);
+    drop(span);
 
     // Colour normalization (std over the source, all channels pooled).
     let flat: Vec<f32> = input.source_colors.iter().flatten().copied().collect();
@@ -353,15 +357,24 @@ pub fn synthesize(
         }
     }
 
-    // Stages still to come: per level the level itself, two chart builds, the source fans and one
-    // fan pass per iteration; then the output stages of the pipeline (about 4).
-    control.plan_more((levels * (4 + params.iterations) + 4) as u32);
+    // Progress: the levels share the rest of the span in proportion to their vertex counts
+    // (charts, fans, E-steps and votes are all linear in them).
+    let level_cost: Vec<f64> = (0..levels)
+        .map(|l| {
+            (src_levels.surface(l).vertex_count() + tgt_levels.surface(l).vertex_count()) as f64
+        })
+        .collect();
+    let total_cost: f64 = level_cost.iter().sum::<f64>().max(1.0);
+    let mut cost_done = 0.0;
     let mut reports = Vec::new();
     let mut fidelity = None;
     let mut nnf = Nnf::default();
     let mut colors: Vec<[f32; 3]> = Vec::new();
     for level in (0..levels).rev() {
         let t_level = Instant::now();
+        let level_start = 0.15 + 0.85 * cost_done / total_cost;
+        cost_done += level_cost[level];
+        let _level_span = control.span(level_start, 0.15 + 0.85 * cost_done / total_cost);
         control.set_prefix(&format!("meshmatch level {}/{levels}", levels - level));
         control.stage("prepare", 0)?;
         let src_surface = src_levels.surface(level);

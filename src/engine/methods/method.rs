@@ -1,0 +1,204 @@
+//! The method seam: the [`Method`] trait and the types that cross it (DESIGN.md "Data flow":
+//! `run(&MethodInput, &Control) -> MethodOutput`).
+
+use crate::engine::asset::constraints::{Constraints, ConstraintsError, MethodId};
+use crate::engine::asset::edits::{Edit, EditedAsset};
+use crate::engine::asset::images::{checked_dimensions, decode_rgba8, mime_of};
+use crate::engine::asset::{Asset, DecodedImage, IngestError, IngestLimits};
+use crate::engine::control::{Cancelled, Control};
+use crate::engine::mesh::MeshError;
+
+/// Whether a method reads an input.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InputUse {
+    /// The job fails without it (at submission: a 400 naming the part).
+    Required,
+    /// Read when given.
+    Optional,
+    /// Never read; an upload is accepted and ignored, with a warning.
+    Unused,
+}
+
+/// The inputs a method reads besides the target (always required) and the constraints.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct InputSpec {
+    /// The source model (multipart part `source`, CLI `--source`).
+    pub source: InputUse,
+    /// A smooth base of the source (part `source_base`, CLI `--source-base`).
+    pub source_base: InputUse,
+    /// A pattern image, PNG or JPEG (part `pattern`, CLI `--pattern`).
+    pub pattern: InputUse,
+}
+
+impl InputSpec {
+    /// A method that reads a required source and nothing else.
+    pub const SOURCE_AND_TARGET: InputSpec = InputSpec {
+        source: InputUse::Required,
+        source_base: InputUse::Unused,
+        pattern: InputUse::Unused,
+    };
+}
+
+/// An uploaded pattern image: its bytes as uploaded (for pass-through) and its decoded texels.
+#[derive(Clone, Debug)]
+pub struct PatternImage {
+    /// File name as uploaded.
+    pub name: String,
+    /// Encoded bytes, unmodified.
+    pub bytes: Vec<u8>,
+    /// `image/png` or `image/jpeg`.
+    pub mime_type: &'static str,
+    /// Decoded sRGB RGBA8 texels.
+    pub image: DecodedImage,
+}
+
+impl PatternImage {
+    /// Checks the header against the image limits and decodes (PNG or JPEG only).
+    ///
+    /// # Errors
+    /// [`IngestError::UnrecognizedImage`], [`IngestError::ImageTooLarge`] or
+    /// [`IngestError::ImageDecode`] (image index 0).
+    pub fn decode(name: &str, bytes: Vec<u8>, limits: &IngestLimits) -> Result<Self, IngestError> {
+        let (format, _, _) = checked_dimensions(0, &bytes, limits)?;
+        let image = decode_rgba8(0, &bytes, format, limits)?;
+        Ok(Self {
+            name: name.to_string(),
+            mime_type: mime_of(format),
+            bytes,
+            image,
+        })
+    }
+}
+
+/// What a method reads. Inputs the method declared [`InputUse::Required`] are present.
+#[derive(Clone, Copy, Debug)]
+pub struct MethodInput<'a> {
+    /// The source model.
+    pub source: Option<&'a Asset>,
+    /// The target model.
+    pub target: &'a Asset,
+    /// The smooth base of the source.
+    pub source_base: Option<&'a Asset>,
+    /// The pattern image.
+    pub pattern: Option<&'a PatternImage>,
+    /// The job description (already checked by [`Method::check`]).
+    pub constraints: &'a Constraints,
+}
+
+impl<'a> MethodInput<'a> {
+    /// The source, for methods that require it.
+    ///
+    /// # Errors
+    /// [`MethodError::Internal`] if the pipeline did not load it (a method that reads the source
+    /// must declare it).
+    pub fn source(&self) -> Result<&'a Asset, MethodError> {
+        self.source.ok_or_else(|| {
+            MethodError::Internal("the method read a source it did not declare".into())
+        })
+    }
+}
+
+/// A file a job produces besides the output model and the report (e.g. `nnf.bin`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ResultFile {
+    /// File name, unique within the job.
+    pub name: String,
+    /// MIME type.
+    pub media_type: String,
+    /// Content.
+    pub bytes: Vec<u8>,
+}
+
+/// What a method returns.
+#[derive(Clone, Debug)]
+pub struct MethodOutput {
+    /// The asset the edits apply to (and that is exported).
+    pub asset: EditedAsset,
+    /// The edits, applied in order.
+    pub edits: Vec<Edit>,
+    /// Extra result files.
+    pub files: Vec<ResultFile>,
+    /// Things the user should know (lowercase sentences).
+    pub warnings: Vec<String>,
+    /// The method's own figures (a serialized typed report).
+    pub report: serde_json::Value,
+}
+
+impl MethodOutput {
+    /// Edits of the target with a typed report.
+    pub fn target<R: serde::Serialize>(edits: Vec<Edit>, report: &R) -> Self {
+        Self {
+            asset: EditedAsset::Target,
+            edits,
+            files: Vec::new(),
+            warnings: Vec::new(),
+            report: serde_json::to_value(report).unwrap_or_default(),
+        }
+    }
+}
+
+/// Failures of a method, by category; the service maps each category to a problem type in one
+/// table (`service::problem`).
+#[derive(Debug, thiserror::Error)]
+pub enum MethodError {
+    /// Cancelled through the Control (also any error raised once cancellation was requested).
+    #[error("cancelled")]
+    Cancelled,
+    /// A constraint or parameter cannot be used; the path names it (`params.samples`).
+    #[error(transparent)]
+    Constraints(#[from] ConstraintsError),
+    /// A surface cannot be built from an input model.
+    #[error("{side} surface: {source}")]
+    Mesh {
+        /// `source`, `target` or `source_base`.
+        side: &'static str,
+        /// The cause.
+        source: MeshError,
+    },
+    /// An input is valid glTF but the method cannot work with it (e.g. a mesh too broken for a
+    /// hierarchy); `kind` is the stable problem type.
+    #[error("{message}")]
+    UnusableInput {
+        /// The input at fault (`source`, `target`, `pattern`), when known.
+        field: Option<String>,
+        /// Stable kebab-case kind (`unusable-mesh`).
+        kind: &'static str,
+        /// What is wrong, lowercase.
+        message: String,
+    },
+    /// A bug or an environment failure.
+    #[error("{0}")]
+    Internal(String),
+}
+
+impl From<Cancelled> for MethodError {
+    fn from(_: Cancelled) -> Self {
+        MethodError::Cancelled
+    }
+}
+
+/// One transfer method.
+pub trait Method: Sync + Send {
+    /// The wire id.
+    fn id(&self) -> MethodId;
+
+    /// The inputs it reads.
+    fn inputs(&self) -> InputSpec;
+
+    /// JSON Schema of its `params` object.
+    fn params_schema(&self) -> serde_json::Value;
+
+    /// Parses and range-checks its params (and anything else in the constraints it can check
+    /// without the models). Runs at submission and again inside the job.
+    ///
+    /// # Errors
+    /// A [`ConstraintsError`] naming the JSON path (`params.hks.eigenpairs`).
+    fn check(&self, constraints: &Constraints) -> Result<(), ConstraintsError>;
+
+    /// Runs the method.
+    ///
+    /// # Errors
+    /// [`MethodError`].
+    fn run(&self, input: &MethodInput<'_>, control: &Control) -> Result<MethodOutput, MethodError>;
+}

@@ -1,0 +1,214 @@
+//! Writing a field into an asset: the output half shared by every method that computes a value
+//! per surface point (a colour, a normal, a displacement) of the asset it edits.
+//!
+//! A method supplies a [`SurfaceField`] of 1 to 4 channels, evaluated at a [`SurfaceSample`]:
+//! the full surface point (primitive, triangle, barycentric coordinates, world position, face or
+//! vertex normal). Because the sample names the primitive and triangle, a method can bake into
+//! another asset's layout through a mapping (ElastiFace bakes the target's colour into the
+//! source's UVs through the fitted source). [`write_field`] does the rest, as [`FieldOutput`]
+//! says:
+//!
+//! * primitives whose material's base-colour UV set exists are grouped by material; each group's
+//!   UV layout is rasterized ([`crate::engine::texture::bake::rasterize_uv_layout`]), the field
+//!   is evaluated at every covered texel (parallel over chunks of 16 texel rows, each chunk
+//!   carrying the field's hint from texel to texel), uncovered and unmatched texels are filled
+//!   ([`crate::engine::texture::pad::pad`]) and the texture is encoded ([`TexelEncoding`]) into
+//!   the output's material slot ([`texels`]);
+//! * primitives without such UVs (or all of them, when `output.vertex_colors` is set) receive
+//!   the field as a vertex attribute when the output names one (COLOR_0 for colour): on a refined
+//!   copy with at most about `vertex_samples` vertices in all (on their own vertices when vertex
+//!   colours were requested or the primitive is skinned or morphed); vertices where the field has
+//!   no value take their neighbours' mean ([`vertices`]).
+//!
+//! The output depends only on the field's values, never on the thread count: texels and
+//! vertices are independent and results are collected in order.
+
+pub mod texels;
+pub mod vertices;
+
+use serde::Serialize;
+
+use crate::engine::asset::constraints::Constraints;
+use crate::engine::asset::edits::{Edit, TextureSlot};
+use crate::engine::asset::Asset;
+use crate::engine::control::{Cancelled, Control};
+
+/// A point of the edited asset's surface at which a field is evaluated.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SurfaceSample {
+    /// Index into `Asset::primitives`.
+    pub primitive: usize,
+    /// Triangle of that primitive (index into `Primitive::triangles`).
+    pub triangle: usize,
+    /// Weights of the triangle's corners, in `Primitive::triangles[triangle]` order.
+    pub barycentric: [f32; 3],
+    /// World-space position (the first instance of the primitive's mesh).
+    pub position: [f32; 3],
+    /// Unit world-space normal: the face normal at texels, the area-weighted vertex normal at
+    /// vertices (flipped for mirroring instances).
+    pub normal: [f32; 3],
+}
+
+/// A field of `channels()` values (1..=4) over the edited asset's surface.
+pub trait SurfaceField: Sync {
+    /// Values per sample, 1..=4.
+    fn channels(&self) -> usize;
+
+    /// Writes the values at `at` into `out[..channels()]` and returns a hint for the next nearby
+    /// sample (same texel row), or `None` where the field has no value there (the texel is
+    /// counted unmatched and filled by padding; a vertex takes its neighbours' mean). `hint` is
+    /// what the previous call returned for a nearby sample, or `None`.
+    fn sample(&self, at: &SurfaceSample, hint: Option<u32>, out: &mut [f32; 4]) -> Option<u32>;
+}
+
+/// How a baked texture's texels are encoded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TexelEncoding {
+    /// Linear RGBA → 8-bit sRGB PNG (RGB when every alpha is 1).
+    Srgb8,
+    /// The first `channels` values, linear 8-bit PNG.
+    Linear8 {
+        /// 1..=4.
+        channels: u8,
+    },
+    /// The first value, 16-bit grayscale PNG.
+    Gray16,
+}
+
+/// Where and how a field is written.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FieldOutput {
+    /// The material slot that receives the textures.
+    pub slot: TextureSlot,
+    /// Texel encoding.
+    pub encoding: TexelEncoding,
+    /// Image names: `<name>_material<m>`, or `<name>_default` for primitives without a material.
+    pub name: &'static str,
+    /// The vertex attribute written on primitives without UVs (`COLOR_0`), or `None` to skip
+    /// them with a warning.
+    pub vertex_attribute: Option<&'static str>,
+    /// Vertex budget of the refined copies of primitives without UVs.
+    pub vertex_samples: usize,
+}
+
+/// Figures of one baked texture.
+#[derive(Clone, Debug, Serialize)]
+pub struct TextureReport {
+    /// Target material (`None`: a new material for primitives without one).
+    pub material: Option<usize>,
+    /// Texture width = height.
+    pub size: u32,
+    /// UV set baked into.
+    pub tex_coord: u32,
+    /// Triangles rasterized.
+    pub triangles: usize,
+    /// Texels inside some triangle.
+    pub covered: u64,
+    /// Covered texels claimed by more than one triangle (resolved to the lowest index).
+    pub overlapped: u64,
+    /// Covered texels with no valid source point (distance or normal gating); padded instead.
+    pub unmatched: u64,
+    /// Texels filled by dilation padding.
+    pub padded: u64,
+    /// Remaining texels filled by pull-push.
+    pub filled: u64,
+}
+
+/// Figures of one primitive that received the vertex attribute.
+#[derive(Clone, Debug, Serialize)]
+pub struct VertexColorReport {
+    /// glTF mesh index.
+    pub mesh: usize,
+    /// Primitive index within the mesh.
+    pub primitive: usize,
+    /// Whether a refined copy replaced the primitive.
+    pub refined: bool,
+    /// Vertices written.
+    pub vertices: usize,
+    /// Vertices with no valid source point (filled from neighbours).
+    pub unmatched: usize,
+}
+
+/// What was written.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct OutputReport {
+    /// One entry per baked texture.
+    pub textures: Vec<TextureReport>,
+    /// One entry per primitive that received the vertex attribute.
+    pub vertex_colors: Vec<VertexColorReport>,
+    /// Things the user should know (lowercase sentences).
+    pub warnings: Vec<String>,
+}
+
+/// Writes `field` into `asset` as `output` says (see the module docs). Control stages `bake`,
+/// `pad` and `vertex_colors`.
+///
+/// # Errors
+/// [`Cancelled`].
+pub fn write_field(
+    asset: &Asset,
+    constraints: &Constraints,
+    output: &FieldOutput,
+    field: &dyn SurfaceField,
+    control: &Control,
+) -> Result<(Vec<Edit>, OutputReport), Cancelled> {
+    let mut report = OutputReport::default();
+    let layout = texels::layout(asset, constraints, &mut report.warnings);
+    let size = constraints.output.texture_size;
+    let span = control.span(0.0, 0.75);
+    let baked = texels::bake_groups(asset, &layout, size, field, control)?;
+    drop(span);
+
+    let span = control.span(0.75, 0.9);
+    let finished =
+        texels::finish_textures(baked, size, constraints.output.padding, output, control)?;
+    let mut edits = Vec::new();
+    for (texture, tr) in finished {
+        edits.push(texture);
+        report.textures.push(tr);
+    }
+    drop(span);
+
+    let _span = control.span(0.9, 1.0);
+    let vertex_edits = vertices::write_vertex_values(
+        asset,
+        constraints,
+        &layout,
+        output,
+        field,
+        control,
+        &mut report,
+    )?;
+    edits.extend(vertex_edits.into_edits());
+    Ok((edits, report))
+}
+
+pub(crate) fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn cross(u: [f32; 3], v: [f32; 3]) -> [f32; 3] {
+    [
+        u[1] * v[2] - u[2] * v[1],
+        u[2] * v[0] - u[0] * v[2],
+        u[0] * v[1] - u[1] * v[0],
+    ]
+}
+
+fn normal_of(a: [f32; 3], b: [f32; 3], c: [f32; 3]) -> [f32; 3] {
+    let n = cross(sub(b, a), sub(c, a));
+    let l = dot(n, n).sqrt();
+    if l > 0.0 {
+        [n[0] / l, n[1] / l, n[2] / l]
+    } else {
+        [0.0; 3]
+    }
+}
+
+pub(crate) fn to_f32(p: [f64; 3]) -> [f32; 3] {
+    [p[0] as f32, p[1] as f32, p[2] as f32]
+}

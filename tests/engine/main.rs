@@ -1,0 +1,32 @@
+//! The engine's integration tests, one test binary (`cargo test --release --test engine`): ingest,
+//! surfaces and BVH, the multiresolution hierarchy, the geometry core, spectra, ray features,
+//! geodesic fans, textures, previews, colour output, the `project` and `meshmatch` methods and the
+//! constraints schema. Filter by module, e.g. `cargo test --release --test engine project_transfer::`.
+//!
+//! Benchmarks are ignored tests named `bench_*`
+//! (`cargo test --release --test engine bench_ -- --ignored --nocapture`); tests that read the
+//! shared assets (`../shared/assets` or `$RETEX_SHARED_ASSETS`) are ignored too and run with
+//! `-- --include-ignored --skip bench_ --skip crosscheck_`, as `.ci/run` does.
+
+#[path = "../common/mod.rs"]
+mod common;
+mod common_geometry;
+mod meshmatch_common;
+
+mod color_output;
+mod constraints_schema;
+mod geodesic_fans;
+mod geometry_core;
+mod ingest_edge_cases;
+mod meshmatch_features;
+mod meshmatch_stripes;
+mod meshmatch_transfer;
+mod method_seam;
+mod multires_properties;
+mod preview;
+mod project_transfer;
+mod ray_features;
+mod shared_pairs;
+mod spectra;
+mod surface_bvh_properties;
+mod texture_properties;

@@ -1,0 +1,16 @@
+//! The HTTP job service's integration tests, one test binary (`cargo test --release --test
+//! service`): the job store, the runner, the HTTP API end to end (including malformed uploads),
+//! the OpenAPI document, and crash recovery of the real `retex serve` process. Filter by module,
+//! e.g. `cargo test --release --test service http::`.
+
+#[path = "../common/mod.rs"]
+mod common;
+mod service_common;
+
+mod http;
+mod http_errors;
+mod method_seam;
+mod openapi;
+mod recovery;
+mod runner;
+mod store;

@@ -1,0 +1,647 @@
+//! The embedded stores: `SqliteJobStore` (state machine, pagination, atomic claims, recovery,
+//! idempotency, retention, durability across reopen) and `FsBlobStore` (atomic writes, ranges,
+//! key validation, prefix deletion).
+#![cfg(feature = "service")]
+
+use std::collections::HashSet;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use chrono::{DateTime, Duration, TimeZone, Utc};
+use retex::service::model::{
+    ArtifactRef, JobInputs, JobProgress, JobRecord, JobStatus, ModelFiles, Problem,
+};
+use retex::service::store::fs::FsBlobStore;
+use retex::service::store::sqlite::SqliteJobStore;
+use retex::service::store::{BlobStore, CreateOutcome, Finish, JobStore, ListFilter, StoreError};
+use uuid::Uuid;
+
+/// A fresh folder under the system temp dir, removed on drop.
+struct TempDir(PathBuf);
+
+impl TempDir {
+    fn new(tag: &str) -> Self {
+        let p = std::env::temp_dir().join(format!("retex-{tag}-{}", Uuid::new_v4()));
+        std::fs::create_dir_all(&p).unwrap();
+        Self(p)
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn t0() -> DateTime<Utc> {
+    Utc.with_ymd_and_hms(2025, 1, 1, 12, 0, 0).unwrap()
+}
+
+fn job(created_at: DateTime<Utc>, method: &str) -> JobRecord {
+    JobRecord {
+        id: Uuid::now_v7(),
+        status: JobStatus::Enqueued,
+        method: method.to_string(),
+        progress: JobProgress::default(),
+        created_at,
+        started_at: None,
+        finished_at: None,
+        error: None,
+        report: None,
+        attempts: 0,
+        idempotency_key: None,
+        request_hash: "h0".into(),
+        inputs: JobInputs {
+            source: Some(ModelFiles {
+                main: "a.glb".into(),
+                files: vec![("a.glb".into(), "jobs/x/inputs/source/a.glb".into())],
+            }),
+            target: ModelFiles::default(),
+            source_base: None,
+            constraints: "jobs/x/inputs/constraints.json".into(),
+            pattern: None,
+        },
+        artifacts: vec![],
+        revision: 1,
+    }
+}
+
+fn open(dir: &TempDir) -> SqliteJobStore {
+    SqliteJobStore::open(&dir.0.join("jobs.sqlite")).unwrap()
+}
+
+fn success() -> Finish {
+    Finish::Succeeded {
+        artifacts: vec![ArtifactRef {
+            name: "result.glb".into(),
+            media_type: "model/gltf-binary".into(),
+            key: "jobs/x/outputs/result.glb".into(),
+            size: 3,
+            sha256: "abc".into(),
+        }],
+        report: serde_json::json!({"coverage": 0.9}),
+    }
+}
+
+#[test]
+fn create_get_round_trip_keeps_every_field() {
+    let dir = TempDir::new("store");
+    let store = open(&dir);
+    let mut j = job(t0(), "project");
+    j.idempotency_key = Some("k1".into());
+    j.report = Some(serde_json::json!({"a": [1, 2]}));
+    assert_eq!(store.create(&j).unwrap(), CreateOutcome::Created);
+    assert_eq!(store.get(j.id).unwrap().as_ref(), Some(&j));
+    assert_eq!(store.get(Uuid::new_v4()).unwrap(), None);
+    // A duplicate id is refused, not silently overwritten.
+    let mut dup = j.clone();
+    dup.idempotency_key = None;
+    assert!(store.create(&dup).is_err());
+}
+
+#[test]
+fn pagination_covers_every_job_once_newest_first_with_filters() {
+    let dir = TempDir::new("store");
+    let store = open(&dir);
+    let mut all = Vec::new();
+    for i in 0..57 {
+        // Several jobs share a timestamp so the id tie-break matters.
+        let j = job(
+            t0() + Duration::seconds(i / 3),
+            if i % 4 == 0 { "meshmatch" } else { "project" },
+        );
+        store.create(&j).unwrap();
+        all.push(j);
+    }
+    // Fail some so the status filter has something to separate.
+    for j in all.iter().step_by(5) {
+        store
+            .finish(j.id, Finish::Canceled, t0() + Duration::hours(1))
+            .unwrap();
+    }
+    let mut expect: Vec<&JobRecord> = all.iter().collect();
+    expect.sort_by_key(|j| std::cmp::Reverse((j.created_at, j.id)));
+
+    let collect = |filter: ListFilter| -> Vec<JobRecord> {
+        let mut out = Vec::new();
+        let mut f = filter;
+        let mut pages = 0;
+        loop {
+            let page = store.list(&f).unwrap();
+            assert!(page.jobs.len() <= f.limit.max(1));
+            out.extend(page.jobs);
+            pages += 1;
+            assert!(pages < 100, "pagination does not end");
+            match page.next {
+                Some(c) => f.cursor = Some(c),
+                None => break,
+            }
+        }
+        out
+    };
+
+    let got = collect(ListFilter {
+        limit: 7,
+        ..Default::default()
+    });
+    let ids: Vec<Uuid> = got.iter().map(|j| j.id).collect();
+    let expect_ids: Vec<Uuid> = expect.iter().map(|j| j.id).collect();
+    assert_eq!(ids, expect_ids, "all jobs exactly once, newest first");
+
+    let project = collect(ListFilter {
+        limit: 4,
+        method: Some("project".into()),
+        status: Some(JobStatus::Enqueued),
+        ..Default::default()
+    });
+    let want: Vec<Uuid> = expect
+        .iter()
+        .filter(|j| {
+            j.method == "project" && store.get(j.id).unwrap().unwrap().status == JobStatus::Enqueued
+        })
+        .map(|j| j.id)
+        .collect();
+    assert!(!want.is_empty());
+    assert_eq!(project.iter().map(|j| j.id).collect::<Vec<_>>(), want);
+
+    let after = t0() + Duration::seconds(5);
+    let before = t0() + Duration::seconds(10);
+    let window = collect(ListFilter {
+        limit: 500,
+        created_after: Some(after),
+        created_before: Some(before),
+        ..Default::default()
+    });
+    assert_eq!(window.len(), 4 * 3, "seconds 6..=9, three jobs each");
+    assert!(window
+        .iter()
+        .all(|j| j.created_at > after && j.created_at < before));
+
+    // A limit above the cap is clamped; a forged cursor is refused.
+    assert_eq!(
+        store
+            .list(&ListFilter {
+                limit: 10_000,
+                ..Default::default()
+            })
+            .unwrap()
+            .jobs
+            .len(),
+        57
+    );
+    assert!(matches!(
+        store.list(&ListFilter {
+            limit: 5,
+            cursor: Some("not a cursor".into()),
+            ..Default::default()
+        }),
+        Err(StoreError::InvalidCursor(_))
+    ));
+}
+
+#[test]
+fn concurrent_claims_never_take_the_same_job() {
+    let dir = TempDir::new("store");
+    let store = Arc::new(open(&dir));
+    let n = 60;
+    for i in 0..n {
+        store
+            .create(&job(t0() + Duration::milliseconds(i), "project"))
+            .unwrap();
+    }
+    let threads: Vec<_> = (0..4)
+        .map(|_| {
+            let s = Arc::clone(&store);
+            std::thread::spawn(move || {
+                let mut mine = Vec::new();
+                while let Some(j) = s.claim_next(Utc::now()).unwrap() {
+                    assert_eq!(j.status, JobStatus::Processing);
+                    assert_eq!(j.attempts, 1);
+                    mine.push(j.id);
+                }
+                mine
+            })
+        })
+        .collect();
+    let mut seen = HashSet::new();
+    let mut total = 0;
+    for t in threads {
+        for id in t.join().unwrap() {
+            total += 1;
+            assert!(seen.insert(id), "job {id} claimed twice");
+        }
+    }
+    assert_eq!(total, n as usize);
+    assert_eq!(store.claim_next(Utc::now()).unwrap(), None);
+}
+
+#[test]
+fn claim_takes_the_oldest_and_bumps_revision() {
+    let dir = TempDir::new("store");
+    let store = open(&dir);
+    let newer = job(t0() + Duration::seconds(1), "project");
+    let older = job(t0(), "project");
+    store.create(&newer).unwrap();
+    store.create(&older).unwrap();
+    let now = t0() + Duration::minutes(1);
+    let c = store.claim_next(now).unwrap().unwrap();
+    assert_eq!(c.id, older.id);
+    assert_eq!(c.started_at, Some(now));
+    assert_eq!(c.revision, older.revision + 1);
+    assert_eq!(store.get(c.id).unwrap().unwrap(), c);
+    let p = JobProgress {
+        stage: "bake".into(),
+        fraction: 0.5,
+        stages_done: 3,
+        stages_total: 6,
+    };
+    store.update_progress(c.id, &p).unwrap();
+    let g = store.get(c.id).unwrap().unwrap();
+    assert_eq!(g.progress, p);
+    assert_eq!(g.revision, c.revision + 1);
+    // Progress of an enqueued job is ignored.
+    store.update_progress(newer.id, &p).unwrap();
+    assert_eq!(store.get(newer.id).unwrap().unwrap(), newer);
+}
+
+#[test]
+fn terminal_states_never_change() {
+    let dir = TempDir::new("store");
+    let store = open(&dir);
+    let j = job(t0(), "project");
+    store.create(&j).unwrap();
+    store.claim_next(t0()).unwrap().unwrap();
+    let done = store
+        .finish(j.id, success(), t0() + Duration::seconds(3))
+        .unwrap();
+    assert_eq!(done.status, JobStatus::Succeeded);
+    assert_eq!(done.progress.fraction, 1.0);
+    let failed = Finish::Failed {
+        error: Problem::default(),
+        report: None,
+    };
+    for attempt in [failed, Finish::Canceled, success()] {
+        assert!(matches!(
+            store.finish(j.id, attempt, Utc::now()),
+            Err(StoreError::Conflict {
+                status: JobStatus::Succeeded,
+                ..
+            })
+        ));
+    }
+    assert!(matches!(
+        store.cancel_if_enqueued(j.id, Utc::now()),
+        Err(StoreError::Conflict { .. })
+    ));
+    store
+        .update_progress(
+            j.id,
+            &JobProgress {
+                stage: "x".into(),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+    assert_eq!(store.get(j.id).unwrap().unwrap(), done, "nothing changed");
+    assert!(matches!(
+        store.finish(Uuid::new_v4(), Finish::Canceled, Utc::now()),
+        Err(StoreError::NotFound(_))
+    ));
+}
+
+#[test]
+fn finish_writes_status_results_and_time_together() {
+    let dir = TempDir::new("store");
+    let store = open(&dir);
+    let j = job(t0(), "project");
+    store.create(&j).unwrap();
+    let claimed = store.claim_next(t0()).unwrap().unwrap();
+    let at = t0() + Duration::seconds(9);
+    let f = store.finish(j.id, success(), at).unwrap();
+    let g = store.get(j.id).unwrap().unwrap();
+    assert_eq!(f, g);
+    assert_eq!(g.finished_at, Some(at));
+    assert_eq!(g.artifacts.len(), 1);
+    assert_eq!(g.report, Some(serde_json::json!({"coverage": 0.9})));
+    assert_eq!(g.revision, claimed.revision + 1);
+    // Indexed columns follow the record: the job is listed under its new status only.
+    let listed = |s| {
+        store
+            .list(&ListFilter {
+                status: Some(s),
+                limit: 10,
+                ..Default::default()
+            })
+            .unwrap()
+            .jobs
+            .len()
+    };
+    assert_eq!(listed(JobStatus::Succeeded), 1);
+    assert_eq!(listed(JobStatus::Processing), 0);
+}
+
+#[test]
+fn cancel_if_enqueued_cancels_only_enqueued_jobs() {
+    let dir = TempDir::new("store");
+    let store = open(&dir);
+    let a = job(t0(), "project");
+    let b = job(t0() + Duration::seconds(1), "project");
+    store.create(&a).unwrap();
+    store.create(&b).unwrap();
+    let running = store.claim_next(t0()).unwrap().unwrap();
+    assert_eq!(running.id, a.id);
+    let unchanged = store.cancel_if_enqueued(a.id, t0()).unwrap();
+    assert_eq!(unchanged, running);
+    let c = store.cancel_if_enqueued(b.id, t0()).unwrap();
+    assert_eq!(c.status, JobStatus::Canceled);
+    assert!(c.finished_at.is_some());
+    assert_eq!(
+        store.claim_next(t0()).unwrap(),
+        None,
+        "a canceled job is never claimed"
+    );
+}
+
+#[test]
+fn recover_requeues_processing_jobs_and_fails_after_max_attempts() {
+    let dir = TempDir::new("store");
+    let store = open(&dir);
+    let j = job(t0(), "project");
+    let other = job(t0() + Duration::seconds(1), "project");
+    store.create(&j).unwrap();
+    store.create(&other).unwrap();
+    for attempt in 1..=3u32 {
+        let c = store.claim_next(t0()).unwrap().unwrap();
+        assert_eq!((c.id, c.attempts), (j.id, attempt));
+        // "Crash" and restart.
+        let r = store.recover(3, t0()).unwrap();
+        if attempt < 3 {
+            assert_eq!(r.requeued, vec![j.id]);
+            assert!(r.failed.is_empty());
+            let g = store.get(j.id).unwrap().unwrap();
+            assert_eq!(g.status, JobStatus::Enqueued);
+            assert_eq!(g.progress, JobProgress::default());
+        } else {
+            assert_eq!(r.failed, vec![j.id]);
+            assert!(r.requeued.is_empty());
+        }
+    }
+    let g = store.get(j.id).unwrap().unwrap();
+    assert_eq!(g.status, JobStatus::Failed);
+    assert_eq!(g.error.unwrap().kind, "/problems/too-many-attempts");
+    // The enqueued job was never touched.
+    assert_eq!(store.get(other.id).unwrap().unwrap(), other);
+}
+
+#[test]
+fn idempotency_key_same_hash_returns_job_different_hash_is_refused() {
+    let dir = TempDir::new("store");
+    let store = open(&dir);
+    let mut a = job(t0(), "project");
+    a.idempotency_key = Some("key-1".into());
+    a.request_hash = "hash-a".into();
+    store.create(&a).unwrap();
+
+    let mut replay = job(t0() + Duration::seconds(1), "project");
+    replay.idempotency_key = Some("key-1".into());
+    replay.request_hash = "hash-a".into();
+    assert_eq!(
+        store.create(&replay).unwrap(),
+        CreateOutcome::Existing(Box::new(a.clone()))
+    );
+    assert_eq!(
+        store.get(replay.id).unwrap(),
+        None,
+        "the replay inserted nothing"
+    );
+
+    let mut other = replay.clone();
+    other.request_hash = "hash-b".into();
+    match store.create(&other) {
+        Err(StoreError::IdempotencyMismatch { key, existing }) => {
+            assert_eq!((key.as_str(), existing), ("key-1", a.id));
+        }
+        r => panic!("expected a mismatch, got {r:?}"),
+    }
+
+    // Keys expire only through prune(keys_before); then the key may be reused.
+    store
+        .prune(t0() - Duration::days(1), t0() - Duration::hours(1))
+        .unwrap();
+    assert!(matches!(
+        store.create(&other),
+        Err(StoreError::IdempotencyMismatch { .. })
+    ));
+    store
+        .prune(t0() - Duration::days(1), t0() + Duration::hours(1))
+        .unwrap();
+    assert_eq!(store.create(&other).unwrap(), CreateOutcome::Created);
+    assert!(
+        store.get(a.id).unwrap().is_some(),
+        "pruning a key keeps its job"
+    );
+}
+
+#[test]
+fn prune_removes_only_old_terminal_jobs() {
+    let dir = TempDir::new("store");
+    let store = open(&dir);
+    let old_done = job(t0(), "project");
+    let new_done = job(t0() + Duration::seconds(1), "project");
+    let old_running = job(t0() - Duration::days(30), "project");
+    let old_enqueued = job(t0() - Duration::days(30) + Duration::seconds(1), "project");
+    for j in [&old_done, &new_done, &old_running, &old_enqueued] {
+        store.create(j).unwrap();
+    }
+    assert_eq!(store.claim_next(t0()).unwrap().unwrap().id, old_running.id);
+    store
+        .cancel_if_enqueued(old_done.id, t0() + Duration::days(1))
+        .unwrap();
+    store
+        .cancel_if_enqueued(new_done.id, t0() + Duration::days(9))
+        .unwrap();
+
+    let removed = store.prune(t0() + Duration::days(8), t0()).unwrap();
+    assert_eq!(
+        removed.iter().map(|j| j.id).collect::<Vec<_>>(),
+        vec![old_done.id]
+    );
+    assert_eq!(store.get(old_done.id).unwrap(), None);
+    for j in [&new_done, &old_running, &old_enqueued] {
+        assert!(store.get(j.id).unwrap().is_some(), "{} must stay", j.id);
+    }
+    // Even a cutoff far in the future never removes unfinished jobs.
+    let removed = store.prune(t0() + Duration::days(1000), t0()).unwrap();
+    assert_eq!(
+        removed.iter().map(|j| j.id).collect::<Vec<_>>(),
+        vec![new_done.id]
+    );
+    let counts = store.counts().unwrap();
+    assert_eq!(
+        counts.by_status,
+        vec![(JobStatus::Enqueued, 1), (JobStatus::Processing, 1)]
+    );
+    assert_eq!(counts.oldest_enqueued, Some(old_enqueued.created_at));
+}
+
+#[test]
+fn delete_removes_finished_jobs_only() {
+    let dir = TempDir::new("store");
+    let store = open(&dir);
+    let j = job(t0(), "project");
+    store.create(&j).unwrap();
+    assert!(matches!(
+        store.delete(j.id),
+        Err(StoreError::Conflict { .. })
+    ));
+    store.cancel_if_enqueued(j.id, t0()).unwrap();
+    assert_eq!(store.delete(j.id).unwrap().id, j.id);
+    assert_eq!(store.get(j.id).unwrap(), None);
+    assert!(matches!(store.delete(j.id), Err(StoreError::NotFound(_))));
+}
+
+#[test]
+fn everything_survives_reopen() {
+    let dir = TempDir::new("store");
+    let (a, b) = (
+        job(t0(), "project"),
+        job(t0() + Duration::seconds(1), "project"),
+    );
+    let finished = {
+        let store = open(&dir);
+        store.create(&a).unwrap();
+        store.create(&b).unwrap();
+        store.claim_next(t0()).unwrap();
+        store.finish(a.id, success(), t0()).unwrap()
+    };
+    let store = open(&dir);
+    assert_eq!(store.get(a.id).unwrap().unwrap(), finished);
+    assert_eq!(store.get(b.id).unwrap().unwrap(), b);
+    drop(store);
+    let store = open(&dir);
+    assert_eq!(store.get(b.id).unwrap().unwrap(), b);
+    drop(store);
+    // The file is in WAL mode and the schema version row is not duplicated by reopening.
+    let conn = rusqlite::Connection::open(dir.0.join("jobs.sqlite")).unwrap();
+    let mode: String = conn
+        .query_row("PRAGMA journal_mode", [], |r| r.get(0))
+        .unwrap();
+    assert_eq!(mode, "wal");
+    let rows: i64 = conn
+        .query_row("SELECT COUNT(*) FROM schema_version", [], |r| r.get(0))
+        .unwrap();
+    assert_eq!(rows, 1);
+}
+
+// ---------------------------------------------------------------- blobs
+
+#[test]
+fn blob_put_get_len_range_and_overwrite() {
+    let dir = TempDir::new("blobs");
+    let blobs = FsBlobStore::open(&dir.0).unwrap();
+    let data: Vec<u8> = (0..10_000u32).map(|i| (i * 7) as u8).collect();
+    blobs.put("jobs/a/inputs/source/Fox.bin", &data).unwrap();
+    assert_eq!(blobs.get("jobs/a/inputs/source/Fox.bin").unwrap(), data);
+    assert_eq!(blobs.len("jobs/a/inputs/source/Fox.bin").unwrap(), 10_000);
+    assert_eq!(
+        blobs
+            .read_range("jobs/a/inputs/source/Fox.bin", 100, 50)
+            .unwrap(),
+        &data[100..150]
+    );
+    assert_eq!(
+        blobs
+            .read_range("jobs/a/inputs/source/Fox.bin", 9_990, 50)
+            .unwrap(),
+        &data[9_990..]
+    );
+    assert!(blobs
+        .read_range("jobs/a/inputs/source/Fox.bin", 20_000, 5)
+        .unwrap()
+        .is_empty());
+    blobs.put("jobs/a/inputs/source/Fox.bin", b"new").unwrap();
+    assert_eq!(blobs.get("jobs/a/inputs/source/Fox.bin").unwrap(), b"new");
+    // No temporary file is left behind.
+    assert_eq!(std::fs::read_dir(blobs.temp_dir()).unwrap().count(), 0);
+    assert!(matches!(
+        blobs.get("jobs/a/missing"),
+        Err(StoreError::BlobNotFound(_))
+    ));
+    assert!(matches!(
+        blobs.len("jobs/a/missing"),
+        Err(StoreError::BlobNotFound(_))
+    ));
+}
+
+#[test]
+fn blob_put_file_moves_a_temp_file_into_place() {
+    let dir = TempDir::new("blobs");
+    let blobs = FsBlobStore::open(&dir.0).unwrap();
+    let temp = blobs.temp_dir().join("upload-1");
+    std::fs::write(&temp, b"streamed").unwrap();
+    blobs.put_file("jobs/b/inputs/target/t.glb", &temp).unwrap();
+    assert!(!temp.exists());
+    assert_eq!(
+        blobs.get("jobs/b/inputs/target/t.glb").unwrap(),
+        b"streamed"
+    );
+    // A file outside the temp dir is refused.
+    let outside = dir.0.join("outside");
+    std::fs::write(&outside, b"x").unwrap();
+    assert!(blobs.put_file("jobs/b/x", &outside).is_err());
+    assert!(outside.exists());
+}
+
+#[test]
+fn bad_blob_keys_are_refused() {
+    let dir = TempDir::new("blobs");
+    let blobs = FsBlobStore::open(&dir.0).unwrap();
+    for key in [
+        "../x", "/abs", "a//b", "", "a/../b", "a/./b", "a/", "a b", "a\\b", "ä", "..", "a/b\0",
+    ] {
+        assert!(
+            matches!(blobs.put(key, b"x"), Err(StoreError::InvalidKey(_))),
+            "{key:?} must be refused"
+        );
+        assert!(
+            matches!(blobs.get(key), Err(StoreError::InvalidKey(_))),
+            "{key:?}"
+        );
+    }
+    assert!(!dir.0.parent().unwrap().join("x").exists());
+    blobs.put("ok/A-z_0.9", b"x").unwrap();
+}
+
+#[test]
+fn delete_prefix_removes_a_job_folder_only() {
+    let dir = TempDir::new("blobs");
+    let blobs = FsBlobStore::open(&dir.0).unwrap();
+    blobs.put("jobs/j1/inputs/a.glb", b"1").unwrap();
+    blobs.put("jobs/j1/outputs/result.glb", b"2").unwrap();
+    blobs.put("jobs/j10/outputs/result.glb", b"3").unwrap();
+    blobs.put("jobs/j2/outputs/result.glb", b"4").unwrap();
+    blobs.delete_prefix("jobs/j1/").unwrap();
+    assert!(matches!(
+        blobs.get("jobs/j1/inputs/a.glb"),
+        Err(StoreError::BlobNotFound(_))
+    ));
+    assert!(matches!(
+        blobs.get("jobs/j1/outputs/result.glb"),
+        Err(StoreError::BlobNotFound(_))
+    ));
+    assert_eq!(blobs.get("jobs/j10/outputs/result.glb").unwrap(), b"3");
+    // A prefix without the trailing slash is a string prefix.
+    blobs.delete_prefix("jobs/j1").unwrap();
+    assert!(blobs.get("jobs/j10/outputs/result.glb").is_err());
+    assert_eq!(blobs.get("jobs/j2/outputs/result.glb").unwrap(), b"4");
+    // Deleting what is not there is fine; escaping the root is not.
+    blobs.delete_prefix("jobs/nothing/").unwrap();
+    assert!(matches!(
+        blobs.delete_prefix("../"),
+        Err(StoreError::InvalidKey(_))
+    ));
+    assert!(matches!(
+        blobs.delete_prefix("/"),
+        Err(StoreError::InvalidKey(_))
+    ));
+}
