@@ -1,11 +1,14 @@
 # Multi-stage build of the `retex` binary; the runtime image runs `retex serve` as a non-root
 # user with its data directory on a volume.
-#   docker build -t retex .
-#   docker run -p 8080:8080 -v retex-data:/var/lib/retex retex
+#   docker build -t retex:0.1.0 .
+#   docker run -p 8080:8080 -v retex-data:/var/lib/retex retex:0.1.0
+# Any Rust >= 1.89 (Cargo.toml's rust-version); Cargo.lock pins the crates (--locked).
 FROM rust:1-bookworm AS build
 WORKDIR /src
 COPY Cargo.toml Cargo.lock ./
 COPY src ./src
+# The constraints schema is compiled in (src/engine/methods/schema.rs: include_str!).
+COPY api ./api
 RUN cargo build --release --locked --bin retex
 
 FROM debian:bookworm-slim
