@@ -57,6 +57,12 @@ pub enum StoreError {
     /// A list cursor that this store did not issue.
     #[error("invalid cursor {0:?}")]
     InvalidCursor(String),
+    /// [`JobStore::create_bounded`]: `limit` jobs are already enqueued.
+    #[error("queue full: {limit} jobs are enqueued")]
+    QueueFull {
+        /// The queue length limit.
+        limit: u64,
+    },
 }
 
 /// Result of [`JobStore::create`].
@@ -137,8 +143,18 @@ pub struct StatusCounts {
 pub trait JobStore: Send + Sync + 'static {
     /// Inserts an enqueued job. With an idempotency key that was seen within the key retention:
     /// the same request hash returns [`CreateOutcome::Existing`], another one
-    /// [`StoreError::IdempotencyMismatch`].
-    fn create(&self, job: &JobRecord) -> Result<CreateOutcome, StoreError>;
+    /// [`StoreError::IdempotencyMismatch`]. The queue is unbounded (see
+    /// [`JobStore::create_bounded`]).
+    fn create(&self, job: &JobRecord) -> Result<CreateOutcome, StoreError> {
+        self.create_bounded(job, u64::MAX)
+    }
+    /// As [`JobStore::create`], but refuses with [`StoreError::QueueFull`] when `queue_len`
+    /// jobs are already enqueued, checked in the same transaction as the insert (so concurrent
+    /// submissions cannot overshoot). An existing Idempotency-Key wins over a full queue: its
+    /// replay is [`CreateOutcome::Existing`] (or a mismatch) whatever the queue holds.
+    fn create_bounded(&self, job: &JobRecord, queue_len: u64) -> Result<CreateOutcome, StoreError>;
+    /// The job an Idempotency-Key was used for, if the key is still remembered.
+    fn job_of_key(&self, key: &str) -> Result<Option<Uuid>, StoreError>;
     /// The job, if it exists.
     fn get(&self, id: Uuid) -> Result<Option<JobRecord>, StoreError>;
     /// Jobs matching the filter, newest first, one page.

@@ -1,0 +1,91 @@
+//! Robustness of the service (issue 9): the queue limit holds under concurrent submissions,
+//! an Idempotency-Key replay wins over a full queue.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use retex::service::jobs::runner::EngineHook;
+
+use crate::service_common::*;
+
+fn id_of(r: &Resp) -> String {
+    match r.json()["id"].as_str() {
+        Some(id) => id.to_string(),
+        None => panic!("{}: {}", r.status, String::from_utf8_lossy(&r.body)),
+    }
+}
+
+/// A server with one worker whose engine calls wait until the returned flag is set, and one
+/// job already holding that worker: every job accepted from now on stays enqueued.
+fn blocked_server(queue_len: u64) -> (TestServer, Arc<AtomicBool>) {
+    let s = TestServer::start(|c| {
+        c.workers = 1;
+        c.queue_len = queue_len;
+    });
+    let release = Arc::new(AtomicBool::new(false));
+    let r = release.clone();
+    let hook: EngineHook = Arc::new(move |_| {
+        while !r.load(Ordering::SeqCst) {
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    });
+    s.state.runner.set_engine_hook(Some(hook));
+    let first = id_of(&submit(&s.base, &spot_parts(64), &[]));
+    wait_for(&s.base, &first, Duration::from_secs(60), |st| {
+        st == "processing"
+    });
+    (s, release)
+}
+
+#[test]
+fn concurrent_submissions_never_overshoot_queue_len() {
+    let (s, release) = blocked_server(2);
+    let parts = spot_parts(64);
+    let answers: Vec<Resp> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..12)
+            .map(|_| scope.spawn(|| submit(&s.base, &parts, &[])))
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    let accepted = answers.iter().filter(|r| r.status == 202).count();
+    for r in answers.iter().filter(|r| r.status != 202) {
+        let p = r.problem(503);
+        assert_eq!(p["type"], "/problems/queue-full", "{p}");
+        assert_eq!(p["limit"]["name"], "queue_len", "{p}");
+        assert_eq!(p["limit"]["value"], 2, "{p}");
+        assert!(r.header("retry-after").is_some());
+    }
+    assert!(accepted <= 2, "{accepted} of 12 accepted with queue_len 2");
+    let enqueued = get(&format!("{}/v1/jobs?status=enqueued", s.base)).json();
+    assert!(
+        enqueued["jobs"].as_array().unwrap().len() <= 2,
+        "{enqueued}"
+    );
+    release.store(true, Ordering::SeqCst);
+}
+
+#[test]
+fn idempotent_replay_wins_over_a_full_queue() {
+    let (s, release) = blocked_server(1);
+    let key = [("Idempotency-Key", "retry-after-lost-202")];
+    let first = submit(&s.base, &spot_parts(64), &key);
+    assert_eq!(
+        first.status,
+        202,
+        "{}",
+        String::from_utf8_lossy(&first.body)
+    );
+    // The queue is full now.
+    submit(&s.base, &spot_parts(64), &[]).problem(503);
+    // The client never saw the 202 and retries with the same key: its job, not 503.
+    let again = submit(&s.base, &spot_parts(64), &key);
+    assert_eq!(
+        again.status,
+        200,
+        "{}",
+        String::from_utf8_lossy(&again.body)
+    );
+    assert_eq!(id_of(&again), id_of(&first));
+    release.store(true, Ordering::SeqCst);
+}
