@@ -177,6 +177,14 @@ pub trait JobStore: Send + Sync + 'static {
     /// Start-up recovery: processing jobs go back to enqueued, or fail once `attempts` reached
     /// `max_attempts`.
     fn recover(&self, max_attempts: u32, now: DateTime<Utc>) -> Result<Recovery, StoreError>;
+    /// Graceful stop: puts these jobs back to enqueued if they are still processing, and gives
+    /// back the attempt their claim counted, so only starts interrupted by a crash count
+    /// against `max_attempts`. Returns the re-enqueued records.
+    fn requeue_stopped(
+        &self,
+        ids: &[Uuid],
+        now: DateTime<Utc>,
+    ) -> Result<Vec<JobRecord>, StoreError>;
     /// Removes a terminal job's record (a non-terminal one is a [`StoreError::Conflict`]).
     fn delete(&self, id: Uuid) -> Result<JobRecord, StoreError>;
     /// Removes terminal jobs finished before `finished_before` and idempotency keys older than

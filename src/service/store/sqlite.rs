@@ -542,6 +542,31 @@ impl JobStore for SqliteJobStore {
         })
     }
 
+    fn requeue_stopped(
+        &self,
+        ids: &[Uuid],
+        _now: DateTime<Utc>,
+    ) -> Result<Vec<JobRecord>, StoreError> {
+        self.write(|tx| {
+            let mut out = Vec::with_capacity(ids.len());
+            for &id in ids {
+                let Some(mut job) = load_record(tx, id)? else {
+                    continue;
+                };
+                if job.status != JobStatus::Processing {
+                    continue;
+                }
+                job.status = JobStatus::Enqueued;
+                job.progress = JobProgress::default();
+                job.attempts = job.attempts.saturating_sub(1);
+                job.revision += 1;
+                update_record(tx, &job)?;
+                out.push(job);
+            }
+            Ok(out)
+        })
+    }
+
     fn delete(&self, id: Uuid) -> Result<JobRecord, StoreError> {
         self.write(|tx| {
             let job = load_record(tx, id)?.ok_or(StoreError::NotFound(id))?;
