@@ -1,5 +1,5 @@
 //! Robustness of the service (issue 9): the queue limit holds under concurrent submissions,
-//! an Idempotency-Key replay wins over a full queue.
+//! an Idempotency-Key replay wins over a full queue, a stalled upload gets 408.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -88,4 +88,50 @@ fn idempotent_replay_wins_over_a_full_queue() {
     );
     assert_eq!(id_of(&again), id_of(&first));
     release.store(true, Ordering::SeqCst);
+}
+
+#[test]
+fn a_stalled_upload_is_408_body_timeout() {
+    use std::io::{Read, Write};
+    let s = TestServer::start(|c| c.body_timeout_secs = 1);
+    let addr = s.base.trim_start_matches("http://");
+    let mut tcp = std::net::TcpStream::connect(addr).unwrap();
+    tcp.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+    let boundary = "stalledBoundary";
+    let head = format!(
+        "POST /v1/jobs HTTP/1.1\r\nHost: {addr}\r\nContent-Type: multipart/form-data; boundary={boundary}\r\nContent-Length: 100000\r\n\r\n"
+    );
+    let part = format!(
+        "--{boundary}\r\nContent-Disposition: form-data; name=\"target\"; filename=\"t.glb\"\r\nContent-Type: application/octet-stream\r\n\r\nglTF some bytes"
+    );
+    tcp.write_all(head.as_bytes()).unwrap();
+    tcp.write_all(part.as_bytes()).unwrap();
+    tcp.flush().unwrap();
+    // Then nothing: the server gives up after body_timeout_secs.
+    let mut answer = Vec::new();
+    let mut buf = [0u8; 4096];
+    loop {
+        match tcp.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => {
+                answer.extend_from_slice(&buf[..n]);
+                let text = String::from_utf8_lossy(&answer);
+                if let Some((_, body)) = text.split_once("\r\n\r\n") {
+                    if body.contains('}') {
+                        break;
+                    }
+                }
+            }
+            Err(e) => panic!("no answer: {e}; got {:?}", String::from_utf8_lossy(&answer)),
+        }
+    }
+    let text = String::from_utf8_lossy(&answer);
+    assert!(text.starts_with("HTTP/1.1 408"), "{text}");
+    assert!(
+        text.to_ascii_lowercase()
+            .contains("content-type: application/problem+json"),
+        "{text}"
+    );
+    assert!(text.contains("/problems/body-timeout"), "{text}");
+    assert!(text.contains("body_timeout_secs"), "{text}");
 }
