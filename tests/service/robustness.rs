@@ -1,5 +1,6 @@
 //! Robustness of the service (issue 9): the queue limit holds under concurrent submissions,
-//! an Idempotency-Key replay wins over a full queue, a stalled upload gets 408.
+//! an Idempotency-Key replay wins over a full queue, a stalled upload gets 408, the retention
+//! sweep removes partial uploads a crash left behind.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -134,4 +135,31 @@ fn a_stalled_upload_is_408_body_timeout() {
     );
     assert!(text.contains("/problems/body-timeout"), "{text}");
     assert!(text.contains("body_timeout_secs"), "{text}");
+}
+
+#[test]
+fn the_retention_sweep_removes_stale_partial_uploads() {
+    let s = TestServer::start(|c| c.prune_interval_secs = 1);
+    let tmp = s.state.blobs.temp_dir();
+    // A crash left these behind (the start-up sweep has already run).
+    let stale = tmp.join("upload-left-by-a-crash");
+    std::fs::write(&stale, b"partial").unwrap();
+    let two_hours_ago = std::time::SystemTime::now() - Duration::from_secs(2 * 3600);
+    std::fs::File::options()
+        .write(true)
+        .open(&stale)
+        .unwrap()
+        .set_modified(two_hours_ago)
+        .unwrap();
+    let fresh = tmp.join("upload-in-flight");
+    std::fs::write(&fresh, b"streaming").unwrap();
+    let end = std::time::Instant::now() + Duration::from_secs(20);
+    while stale.exists() {
+        assert!(
+            std::time::Instant::now() < end,
+            "stale upload still there after 20 s"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert!(fresh.exists(), "a fresh upload file is not swept");
 }

@@ -214,4 +214,8 @@ pub trait BlobStore: Send + Sync + 'static {
     fn delete_prefix(&self, prefix: &str) -> Result<(), StoreError>;
     /// A folder on the same file system for streaming uploads before [`BlobStore::put_file`].
     fn temp_dir(&self) -> PathBuf;
+    /// Removes files of [`BlobStore::temp_dir`] not modified for `older_than`: partial uploads
+    /// left by a crash (an upload in flight writes its file at least every body timeout).
+    /// Returns how many were removed.
+    fn sweep_temp(&self, older_than: std::time::Duration) -> Result<usize, StoreError>;
 }
