@@ -163,3 +163,37 @@ fn the_retention_sweep_removes_stale_partial_uploads() {
     }
     assert!(fresh.exists(), "a fresh upload file is not swept");
 }
+
+#[test]
+fn blank_tokens_refuse_a_non_loopback_address() {
+    use retex::service::config::ServeConfig;
+    let env = |tokens: &'static str, addr: &'static str| {
+        move |k: &str| match k {
+            "RETEX_TOKENS" => Some(tokens.to_string()),
+            "RETEX_ADDR" => Some(addr.to_string()),
+            _ => None,
+        }
+    };
+    // Set but blank, on every interface: an open server by mistake; refused with a clear error.
+    for blank in ["", " ", " , ,"] {
+        let mut c = ServeConfig::default();
+        c.apply_env(env(blank, "0.0.0.0:8080")).unwrap();
+        let e = c.validate().unwrap_err().to_string();
+        assert!(
+            e.contains("RETEX_TOKENS") && e.contains("0.0.0.0:8080"),
+            "{e}"
+        );
+    }
+    // On loopback it starts (open, with a warning in the log).
+    let mut c = ServeConfig::default();
+    c.apply_env(env(" ", "127.0.0.1:8080")).unwrap();
+    c.validate().unwrap();
+    // Real tokens anywhere, or RETEX_TOKENS unset, are fine.
+    let mut c = ServeConfig::default();
+    c.apply_env(env("abcdefgh", "0.0.0.0:8080")).unwrap();
+    c.validate().unwrap();
+    let mut c = ServeConfig::default();
+    c.apply_env(|k| (k == "RETEX_ADDR").then(|| "0.0.0.0:8080".to_string()))
+        .unwrap();
+    c.validate().unwrap();
+}
