@@ -63,6 +63,11 @@ pub struct ServeConfig {
     pub limits: IngestLimits,
     /// JSON log lines instead of text (env `RETEX_LOG_JSON=1`).
     pub log_json: bool,
+    /// `RETEX_TOKENS` was set but names no token (empty or blank): a server meant to need
+    /// tokens would start open. [`ServeConfig::validate`] refuses that unless the address is
+    /// loopback.
+    #[serde(skip)]
+    pub tokens_blank: bool,
 }
 
 impl Default for ServeConfig {
@@ -87,6 +92,7 @@ impl Default for ServeConfig {
             max_texture_size: 8192,
             limits: IngestLimits::default(),
             log_json: false,
+            tokens_blank: false,
         }
     }
 }
@@ -181,6 +187,7 @@ impl ServeConfig {
         }
         if let Some(v) = get("RETEX_TOKENS") {
             self.tokens = list(v);
+            self.tokens_blank = self.tokens.is_empty();
         }
         if let Some(v) = get("RETEX_CORS_ORIGINS") {
             self.cors_origins = list(v);
@@ -243,6 +250,15 @@ impl ServeConfig {
         }
         if self.tokens.iter().any(|t| t.len() < 8) {
             return bad("tokens", "each token needs at least 8 characters");
+        }
+        if self.tokens_blank && self.tokens.is_empty() && !self.addr.ip().is_loopback() {
+            return Err(ConfigError::Invalid {
+                field: "tokens",
+                message: format!(
+                    "RETEX_TOKENS is set but names no token: refusing to serve {} without authentication; set a token (8+ characters) or unset RETEX_TOKENS",
+                    self.addr
+                ),
+            });
         }
         Ok(())
     }

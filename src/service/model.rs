@@ -1,8 +1,8 @@
 //! The job record: what the store keeps for every job and what `GET /v1/jobs/{id}` shows.
 //!
 //! Status transitions: `enqueued → processing → succeeded | failed | canceled`, and
-//! `enqueued → canceled`; `processing → enqueued` only on recovery after a crash (counted in
-//! `attempts`). Terminal states never change.
+//! `enqueued → canceled`; `processing → enqueued` on recovery after a crash (counted in
+//! `attempts`) and on a graceful shutdown (not counted). Terminal states never change.
 
 use chrono::{DateTime, Utc};
 use serde::{Deserialize, Serialize};
@@ -153,7 +153,8 @@ pub struct JobRecord {
     pub error: Option<Problem>,
     /// The method report (coverage, timings per stage, warnings), for finished jobs.
     pub report: Option<serde_json::Value>,
-    /// How many times a worker started it (recovery re-enqueues count).
+    /// How many times a worker started it, less the starts a graceful shutdown interrupted
+    /// (crash recoveries count).
     pub attempts: u32,
     /// The client's Idempotency-Key, if given.
     pub idempotency_key: Option<String>,

@@ -1,6 +1,6 @@
 //! The HTTP job service's integration tests, one test binary (`cargo test --release --test
 //! service`): the job store, the runner, the HTTP API end to end (including malformed uploads),
-//! the OpenAPI document, and crash recovery of the real `retex serve` process. Filter by module,
+//! the OpenAPI document, robustness (issue 9), and crash recovery of the real `retex serve` process. Filter by module,
 //! e.g. `cargo test --release --test service http::`. Needs the default features (the service,
 //! and the CLI binary that the recovery test runs).
 #![cfg(all(feature = "service", feature = "cli"))]
@@ -14,5 +14,6 @@ mod http_errors;
 mod method_seam;
 mod openapi;
 mod recovery;
+mod robustness;
 mod runner;
 mod store;

@@ -2,7 +2,7 @@
 //! and its GLB loads; bad constraints fail naming the field; the engine runs only on engine
 //! threads; a panic fails one job and the runner keeps working; a processing job is canceled
 //! promptly (about a second; asserted within a generous 5 s); at most `workers` jobs run;
-//! shutdown re-enqueues a running job.
+//! shutdown re-enqueues a running job without counting the attempt.
 #![cfg(feature = "service")]
 
 use crate::common;
@@ -373,7 +373,7 @@ async fn one_worker_cancel_is_prompt_then_shutdown_requeues() {
     assert!(took < Duration::from_secs(10), "shutdown took {took:?}");
     let j = env.jobs.get(b).unwrap().unwrap();
     assert_eq!(j.status, JobStatus::Enqueued, "{j:?}");
-    assert_eq!(j.attempts, 1);
+    assert_eq!(j.attempts, 0, "a graceful stop gives the attempt back");
     assert!(j.artifacts.is_empty());
     // A stopped runner claims nothing.
     runner.notify();
@@ -401,6 +401,55 @@ async fn start_recovers_a_job_left_processing_by_a_crash() {
     assert_eq!((claimed.id, claimed.attempts), (id, 1));
 
     // Restart: the job goes back to the queue and runs to the end.
+    let runner = start(&env, 1);
+    let j = wait_terminal(&env, id).await;
+    assert_eq!(j.status, JobStatus::Succeeded, "{:?}", j.error);
+    assert_eq!(j.attempts, 2, "one crashed start plus the recovered one");
+    runner.shutdown(Duration::from_secs(1)).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn graceful_restarts_do_not_count_as_crash_attempts() {
+    let env = env();
+    let id = {
+        let runner = start(&env, 1);
+        // The engine call waits a second: longer than the shutdown deadline below.
+        runner.set_engine_hook(Some(Arc::new(|_| {
+            std::thread::sleep(Duration::from_secs(1))
+        })));
+        let id = submit(
+            &env,
+            &runner,
+            SPOT,
+            r#"{"version":1,"output":{"texture_size":64}}"#,
+        );
+        wait_until(&env, id, Duration::from_secs(60), "processing", |j| {
+            j.status == JobStatus::Processing
+        })
+        .await;
+        runner.shutdown(Duration::from_millis(50)).await;
+        id
+    };
+    // Two rolling restarts (max_attempts is 3)...
+    for restart in 1..=2 {
+        let j = env.jobs.get(id).unwrap().unwrap();
+        assert_eq!(j.status, JobStatus::Enqueued, "restart {restart}: {j:?}");
+        assert_eq!(j.attempts, 0, "a graceful stop is not an attempt: {j:?}");
+        let runner = start(&env, 1);
+        runner.set_engine_hook(Some(Arc::new(|_| {
+            std::thread::sleep(Duration::from_secs(1))
+        })));
+        runner.notify();
+        wait_until(&env, id, Duration::from_secs(60), "processing", |j| {
+            j.status == JobStatus::Processing
+        })
+        .await;
+        runner.shutdown(Duration::from_millis(50)).await;
+    }
+    // ... then a crash: the "crashed process" claims the job and dies.
+    let claimed = env.jobs.claim_next(Utc::now()).unwrap().unwrap();
+    assert_eq!(claimed.id, id);
+    // The job is recovered and runs to the end, not failed with too-many-attempts.
     let runner = start(&env, 1);
     let j = wait_terminal(&env, id).await;
     assert_eq!(j.status, JobStatus::Succeeded, "{:?}", j.error);

@@ -109,8 +109,7 @@ fn multipart_error(e: MultipartError, config: &ServeConfig) -> ApiError {
     if status == StatusCode::PAYLOAD_TOO_LARGE {
         return ApiError::too_large("body", "max_body_bytes", config.max_body_bytes);
     }
-    let text = e.body_text();
-    if text.to_ascii_lowercase().contains("timed out") || text.contains("timeout") {
+    if is_timeout(&e) {
         return ApiError::new(
             StatusCode::REQUEST_TIMEOUT,
             "body-timeout",
@@ -119,7 +118,26 @@ fn multipart_error(e: MultipartError, config: &ServeConfig) -> ApiError {
         )
         .limit("body_timeout_secs", config.body_timeout_secs);
     }
-    ApiError::bad_request("invalid-multipart", "body", text)
+    ApiError::bad_request("invalid-multipart", "body", e.body_text())
+}
+
+/// Whether a body error was caused by the request body timeout: the error of
+/// `RequestBodyTimeoutLayer` ([`tower_http::timeout::TimeoutError`]) or an I/O time-out,
+/// anywhere in the source chain (the multipart parser wraps it as "failed to read stream").
+fn is_timeout(e: &(dyn std::error::Error + 'static)) -> bool {
+    let mut cur = Some(e);
+    while let Some(err) = cur {
+        if err.is::<tower_http::timeout::TimeoutError>()
+            || err.is::<tokio::time::error::Elapsed>()
+            || err
+                .downcast_ref::<std::io::Error>()
+                .is_some_and(|io| io.kind() == std::io::ErrorKind::TimedOut)
+        {
+            return true;
+        }
+        cur = err.source();
+    }
+    false
 }
 
 /// Checks a part's filename: a relative path of normal segments.

@@ -93,20 +93,6 @@ fn model_files(
     })
 }
 
-fn queue_full(state: &AppState) -> ApiError {
-    ApiError::new(
-        StatusCode::SERVICE_UNAVAILABLE,
-        "queue-full",
-        "Queue full",
-        format!(
-            "{} jobs are waiting; try again later",
-            state.config.queue_len
-        ),
-    )
-    .limit("queue_len", state.config.queue_len)
-    .retry_after(5)
-}
-
 async fn queue_depth(state: &AppState) -> Result<u64, ApiError> {
     let jobs = state.jobs.clone();
     let counts = blocking(move || jobs.counts()).await?;
@@ -181,8 +167,18 @@ async fn submit_multipart(
             }
         },
     };
-    if queue_depth(state).await? >= state.config.queue_len {
-        return Err(queue_full(state));
+    // A cheap early refusal before the upload is read. The binding check is in the store's
+    // create transaction; a known Idempotency-Key skips this one, so a retry after a lost 202
+    // gets its job (200) even while the queue is full.
+    let known_key = match &key {
+        Some(k) => {
+            let (jobs, k) = (state.jobs.clone(), k.clone());
+            blocking(move || jobs.job_of_key(&k)).await?.is_some()
+        }
+        None => false,
+    };
+    if !known_key && queue_depth(state).await? >= state.config.queue_len {
+        return Err(ApiError::queue_full(state.config.queue_len));
     }
     let upload = read_upload(
         multipart,
@@ -210,6 +206,7 @@ async fn submit_multipart(
         revision: 0,
     };
     let (jobs, blobs) = (state.jobs.clone(), state.blobs.clone());
+    let queue_len = state.config.queue_len;
     let outcome = blocking(move || {
         let mut record = record;
         let stored = (|| {
@@ -241,7 +238,7 @@ async fn submit_multipart(
                 constraints,
                 pattern,
             };
-            jobs.create(&record)
+            jobs.create_bounded(&record, queue_len)
         })();
         if !matches!(stored, Ok(CreateOutcome::Created)) {
             // A replay, a mismatch or a failure: the new files belong to no job.

@@ -192,6 +192,12 @@ pub async fn start_with(config: ServeConfig, registry: Registry) -> Result<Serve
         .await
         .map_err(|e| format!("bind {}: {e}", config.addr))?;
     let addr = listener.local_addr().map_err(|e| e.to_string())?;
+    if config.tokens.is_empty() {
+        tracing::warn!(
+            %addr,
+            "authentication is off: no bearer tokens configured (RETEX_TOKENS), every route is open"
+        );
+    }
     let (shutdown_tx, shutdown) = watch::channel(false);
     let state = AppState {
         config: Arc::new(config),

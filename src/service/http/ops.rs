@@ -1,6 +1,7 @@
 //! Operations: `GET /healthz` (the process answers), `GET /readyz` (the store answers and the
 //! server is not shutting down), and the retention sweep that prunes finished jobs older than
-//! the TTL together with their files. Unfinished jobs are never pruned.
+//! the TTL together with their files, and removes partial uploads a crash left in the blob
+//! store's temp dir (untouched for an hour). Unfinished jobs are never pruned.
 
 use std::time::Duration;
 
@@ -70,16 +71,32 @@ pub fn prune_once(state: &AppState) -> Result<usize, crate::service::store::Stor
     Ok(removed.len())
 }
 
-/// Runs [`prune_once`] every `prune_interval_secs` until shutdown.
+/// Temporary upload files untouched this long are leftovers of a crash.
+pub const STALE_TEMP: Duration = Duration::from_secs(3600);
+
+/// Runs [`prune_once`] and sweeps stale partial uploads from the blob store's temp dir every
+/// `prune_interval_secs` until shutdown.
 pub async fn retention_loop(state: AppState) {
     let mut shutdown = state.shutdown.clone();
     let period = Duration::from_secs(state.config.prune_interval_secs);
     loop {
         let s = state.clone();
-        match tokio::task::spawn_blocking(move || prune_once(&s)).await {
-            Ok(Ok(n)) if n > 0 => tracing::info!(removed = n, "retention: pruned finished jobs"),
-            Ok(Err(e)) => tracing::warn!(error = %e, "retention sweep failed"),
-            _ => {}
+        let swept =
+            tokio::task::spawn_blocking(move || (prune_once(&s), s.blobs.sweep_temp(STALE_TEMP)))
+                .await;
+        if let Ok((pruned, temp)) = swept {
+            match pruned {
+                Ok(n) if n > 0 => tracing::info!(removed = n, "retention: pruned finished jobs"),
+                Err(e) => tracing::warn!(error = %e, "retention sweep failed"),
+                _ => {}
+            }
+            match temp {
+                Ok(n) if n > 0 => {
+                    tracing::info!(removed = n, "retention: removed stale partial uploads")
+                }
+                Err(e) => tracing::warn!(error = %e, "sweeping the upload temp dir failed"),
+                _ => {}
+            }
         }
         tokio::select! {
             _ = tokio::time::sleep(period) => {}

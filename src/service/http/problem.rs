@@ -101,6 +101,18 @@ impl ApiError {
         .limit(limit_name, limit)
     }
 
+    /// 503 when `queue_len` jobs are waiting; with `Retry-After`.
+    pub fn queue_full(queue_len: u64) -> Self {
+        Self::new(
+            StatusCode::SERVICE_UNAVAILABLE,
+            "queue-full",
+            "Queue full",
+            format!("{queue_len} jobs are waiting; try again later"),
+        )
+        .limit("queue_len", queue_len)
+        .retry_after(5)
+    }
+
     /// 400 for a malformed request (missing part, bad header, bad query).
     pub fn bad_request(kind: &str, field: &str, detail: impl Into<String>) -> Self {
         Self::new(StatusCode::BAD_REQUEST, kind, "Bad request", detail).field(field)
@@ -156,6 +168,7 @@ impl ApiError {
                 "next",
                 format!("cursor {c:?} was not issued by this server"),
             ),
+            StoreError::QueueFull { limit } => Self::queue_full(limit),
             other => Self::internal(other),
         }
     }

@@ -26,7 +26,8 @@
 //! stays taken, so at most `workers` engine calls ever run. Results of an engine call that
 //! completes after the cancel are discarded. On [`Runner::shutdown`] the jobs still running
 //! after the deadline are cancelled the same way but put back to `enqueued` instead (they run
-//! again after restart).
+//! again after restart); such a stop gives back the attempt, so rolling restarts never fail a
+//! job with `too-many-attempts`; only crashes (a job found processing at start) count.
 
 use std::cell::Cell;
 use std::collections::HashMap;
@@ -346,12 +347,15 @@ impl Runner {
         {
             return;
         }
-        let stopping: Vec<Arc<Running>> = locked(&self.running).values().cloned().collect();
+        let stopping: Vec<(Uuid, Arc<Running>)> = locked(&self.running)
+            .iter()
+            .map(|(id, r)| (*id, r.clone()))
+            .collect();
         tracing::warn!(
             jobs = stopping.len(),
             "shutdown deadline passed: stopping running jobs to re-enqueue them"
         );
-        for r in &stopping {
+        for (_, r) in &stopping {
             r.requeue.store(true, Ordering::SeqCst);
             r.control.cancel();
         }
@@ -362,14 +366,9 @@ impl Runner {
             tracing::error!("jobs did not stop within the grace period; re-enqueueing anyway");
         }
         let jobs = Arc::clone(&self.jobs);
-        let requeue = move || -> Result<Vec<JobRecord>, StoreError> {
-            let recovery = jobs.recover(u32::MAX, Utc::now())?;
-            let mut records = Vec::with_capacity(recovery.requeued.len());
-            for id in recovery.requeued {
-                records.extend(jobs.get(id)?);
-            }
-            Ok(records)
-        };
+        let ids: Vec<Uuid> = stopping.iter().map(|(id, _)| *id).collect();
+        // A graceful stop does not count against `max_attempts` (only crashes do).
+        let requeue = move || jobs.requeue_stopped(&ids, Utc::now());
         match tokio::task::spawn_blocking(requeue).await {
             Ok(Ok(records)) => {
                 for j in records {

@@ -80,19 +80,9 @@ impl FsBlobStore {
         fs::create_dir_all(&blobs)?;
         fs::create_dir_all(&tmp)?;
         sync_dir(&root)?;
-        let now = SystemTime::now();
-        for entry in fs::read_dir(&tmp)?.flatten() {
-            let old = entry
-                .metadata()
-                .and_then(|m| m.modified())
-                .ok()
-                .and_then(|t| now.duration_since(t).ok())
-                .is_some_and(|age| age > STALE_TEMP);
-            if old {
-                let _ = fs::remove_file(entry.path());
-            }
-        }
-        Ok(Self { blobs, tmp })
+        let store = Self { blobs, tmp };
+        store.sweep_temp(STALE_TEMP)?;
+        Ok(store)
     }
 
     /// The file of a (valid) key.
@@ -270,5 +260,23 @@ impl BlobStore for FsBlobStore {
 
     fn temp_dir(&self) -> PathBuf {
         self.tmp.clone()
+    }
+
+    fn sweep_temp(&self, older_than: Duration) -> Result<usize, StoreError> {
+        let now = SystemTime::now();
+        let mut removed = 0;
+        for entry in fs::read_dir(&self.tmp)?.flatten() {
+            let old = entry
+                .metadata()
+                .ok()
+                .filter(|m| m.is_file())
+                .and_then(|m| m.modified().ok())
+                .and_then(|t| now.duration_since(t).ok())
+                .is_some_and(|age| age > older_than);
+            if old && fs::remove_file(entry.path()).is_ok() {
+                removed += 1;
+            }
+        }
+        Ok(removed)
     }
 }

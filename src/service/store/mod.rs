@@ -57,6 +57,12 @@ pub enum StoreError {
     /// A list cursor that this store did not issue.
     #[error("invalid cursor {0:?}")]
     InvalidCursor(String),
+    /// [`JobStore::create_bounded`]: `limit` jobs are already enqueued.
+    #[error("queue full: {limit} jobs are enqueued")]
+    QueueFull {
+        /// The queue length limit.
+        limit: u64,
+    },
 }
 
 /// Result of [`JobStore::create`].
@@ -137,8 +143,18 @@ pub struct StatusCounts {
 pub trait JobStore: Send + Sync + 'static {
     /// Inserts an enqueued job. With an idempotency key that was seen within the key retention:
     /// the same request hash returns [`CreateOutcome::Existing`], another one
-    /// [`StoreError::IdempotencyMismatch`].
-    fn create(&self, job: &JobRecord) -> Result<CreateOutcome, StoreError>;
+    /// [`StoreError::IdempotencyMismatch`]. The queue is unbounded (see
+    /// [`JobStore::create_bounded`]).
+    fn create(&self, job: &JobRecord) -> Result<CreateOutcome, StoreError> {
+        self.create_bounded(job, u64::MAX)
+    }
+    /// As [`JobStore::create`], but refuses with [`StoreError::QueueFull`] when `queue_len`
+    /// jobs are already enqueued, checked in the same transaction as the insert (so concurrent
+    /// submissions cannot overshoot). An existing Idempotency-Key wins over a full queue: its
+    /// replay is [`CreateOutcome::Existing`] (or a mismatch) whatever the queue holds.
+    fn create_bounded(&self, job: &JobRecord, queue_len: u64) -> Result<CreateOutcome, StoreError>;
+    /// The job an Idempotency-Key was used for, if the key is still remembered.
+    fn job_of_key(&self, key: &str) -> Result<Option<Uuid>, StoreError>;
     /// The job, if it exists.
     fn get(&self, id: Uuid) -> Result<Option<JobRecord>, StoreError>;
     /// Jobs matching the filter, newest first, one page.
@@ -161,6 +177,14 @@ pub trait JobStore: Send + Sync + 'static {
     /// Start-up recovery: processing jobs go back to enqueued, or fail once `attempts` reached
     /// `max_attempts`.
     fn recover(&self, max_attempts: u32, now: DateTime<Utc>) -> Result<Recovery, StoreError>;
+    /// Graceful stop: puts these jobs back to enqueued if they are still processing, and gives
+    /// back the attempt their claim counted, so only starts interrupted by a crash count
+    /// against `max_attempts`. Returns the re-enqueued records.
+    fn requeue_stopped(
+        &self,
+        ids: &[Uuid],
+        now: DateTime<Utc>,
+    ) -> Result<Vec<JobRecord>, StoreError>;
     /// Removes a terminal job's record (a non-terminal one is a [`StoreError::Conflict`]).
     fn delete(&self, id: Uuid) -> Result<JobRecord, StoreError>;
     /// Removes terminal jobs finished before `finished_before` and idempotency keys older than
@@ -190,4 +214,8 @@ pub trait BlobStore: Send + Sync + 'static {
     fn delete_prefix(&self, prefix: &str) -> Result<(), StoreError>;
     /// A folder on the same file system for streaming uploads before [`BlobStore::put_file`].
     fn temp_dir(&self) -> PathBuf;
+    /// Removes files of [`BlobStore::temp_dir`] not modified for `older_than`: partial uploads
+    /// left by a crash (an upload in flight writes its file at least every body timeout).
+    /// Returns how many were removed.
+    fn sweep_temp(&self, older_than: std::time::Duration) -> Result<usize, StoreError>;
 }

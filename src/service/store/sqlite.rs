@@ -292,7 +292,7 @@ fn conflict(job: &JobRecord, what: &'static str) -> StoreError {
 }
 
 impl JobStore for SqliteJobStore {
-    fn create(&self, job: &JobRecord) -> Result<CreateOutcome, StoreError> {
+    fn create_bounded(&self, job: &JobRecord, queue_len: u64) -> Result<CreateOutcome, StoreError> {
         self.write(|tx| {
             if let Some(key) = &job.idempotency_key {
                 let seen: Option<(String, String)> = tx
@@ -317,6 +317,20 @@ impl JobStore for SqliteJobStore {
                     // The job was deleted by its owner: the key is free again.
                     tx.execute("DELETE FROM idempotency_keys WHERE key = ?1", [key])?;
                 }
+            }
+            // Counted inside the write transaction: concurrent creates are serialized, so the
+            // queue never holds more than `queue_len` jobs.
+            if job.status == JobStatus::Enqueued && queue_len < u64::MAX {
+                let enqueued: i64 = tx.query_row(
+                    "SELECT COUNT(*) FROM jobs WHERE status = 'enqueued'",
+                    [],
+                    |r| r.get(0),
+                )?;
+                if enqueued.max(0) as u64 >= queue_len {
+                    return Err(StoreError::QueueFull { limit: queue_len });
+                }
+            }
+            if let Some(key) = &job.idempotency_key {
                 // A key pruned from the key table may still sit on an old job row.
                 tx.execute(
                     "UPDATE jobs SET idempotency_key = NULL WHERE idempotency_key = ?1",
@@ -330,6 +344,22 @@ impl JobStore for SqliteJobStore {
             insert_record(tx, job)?;
             Ok(CreateOutcome::Created)
         })
+    }
+
+    fn job_of_key(&self, key: &str) -> Result<Option<Uuid>, StoreError> {
+        let id: Option<String> = self
+            .reader()
+            .query_row(
+                "SELECT job_id FROM idempotency_keys WHERE key = ?1",
+                [key],
+                |r| r.get(0),
+            )
+            .optional()?;
+        id.map(|j| {
+            Uuid::parse_str(&j)
+                .map_err(|e| StoreError::Database(format!("bad job id in keys: {e}")))
+        })
+        .transpose()
     }
 
     fn get(&self, id: Uuid) -> Result<Option<JobRecord>, StoreError> {
@@ -507,6 +537,31 @@ impl JobStore for SqliteJobStore {
                 }
                 job.revision += 1;
                 update_record(tx, &job)?;
+            }
+            Ok(out)
+        })
+    }
+
+    fn requeue_stopped(
+        &self,
+        ids: &[Uuid],
+        _now: DateTime<Utc>,
+    ) -> Result<Vec<JobRecord>, StoreError> {
+        self.write(|tx| {
+            let mut out = Vec::with_capacity(ids.len());
+            for &id in ids {
+                let Some(mut job) = load_record(tx, id)? else {
+                    continue;
+                };
+                if job.status != JobStatus::Processing {
+                    continue;
+                }
+                job.status = JobStatus::Enqueued;
+                job.progress = JobProgress::default();
+                job.attempts = job.attempts.saturating_sub(1);
+                job.revision += 1;
+                update_record(tx, &job)?;
+                out.push(job);
             }
             Ok(out)
         })
