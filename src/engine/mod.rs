@@ -5,6 +5,7 @@ pub mod asset;
 pub mod control;
 pub mod geometry;
 pub mod linalg;
+pub mod math;
 pub mod mesh;
 pub mod methods;
 pub mod multires;

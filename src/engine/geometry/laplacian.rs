@@ -31,6 +31,7 @@ use rayon::prelude::*;
 
 use crate::engine::control::Cancelled;
 use crate::engine::linalg::{LinalgError, SparsityPattern, SymmetricMatrix};
+use crate::engine::math::{cross, dot, length, sub};
 use crate::engine::mesh::Surface;
 
 /// Errors of the geometry operators.
@@ -132,26 +133,6 @@ pub(crate) struct FaceTerms {
     pub area: [f64; 3],
 }
 
-pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-pub(crate) fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-pub(crate) fn norm(a: [f64; 3]) -> f64 {
-    dot(a, a).sqrt()
-}
-
 /// Corner positions of `face` in f64.
 pub(crate) fn face_points(surface: &Surface, face: usize) -> [[f64; 3]; 3] {
     surface.faces[face].map(|v| surface.positions[v as usize].map(|c| c as f64))
@@ -166,7 +147,7 @@ pub(crate) fn is_degenerate(surface: &Surface, face: usize) -> bool {
     let p = face_points(surface, face);
     let e = [sub(p[1], p[0]), sub(p[2], p[1]), sub(p[0], p[2])];
     let longest2 = e.iter().map(|x| dot(*x, *x)).fold(0.0, f64::max);
-    let twice_area = norm(cross(e[0], sub(p[2], p[0])));
+    let twice_area = length(cross(e[0], sub(p[2], p[0])));
     twice_area.is_nan() || twice_area <= f64::EPSILON * longest2
 }
 
@@ -181,7 +162,7 @@ pub(crate) fn face_terms(
         return FaceTerms::default();
     }
     let p = face_points(surface, face);
-    let twice_area = norm(cross(sub(p[1], p[0]), sub(p[2], p[0])));
+    let twice_area = length(cross(sub(p[1], p[0]), sub(p[2], p[0])));
     let area = 0.5 * twice_area;
     let mut cot = [0.0; 3];
     let mut raw = [0.0; 3];

@@ -12,6 +12,7 @@
 use std::collections::HashMap;
 
 use super::surface::Surface;
+use crate::engine::math::normalize;
 
 /// The 12 vertices (unit length) and 20 counter-clockwise faces of a regular icosahedron.
 fn icosahedron() -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
@@ -54,11 +55,6 @@ fn icosahedron() -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
         [9, 8, 1],
     ];
     (v, f)
-}
-
-fn normalize(p: [f64; 3]) -> [f64; 3] {
-    let l = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-    [p[0] / l, p[1] / l, p[2] / l]
 }
 
 /// An icosphere by recursive midpoint subdivision: the icosahedron with every face split in four

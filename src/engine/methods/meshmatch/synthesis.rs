@@ -15,6 +15,7 @@ use rayon::prelude::*;
 
 use crate::engine::asset::Asset;
 use crate::engine::control::Control;
+use crate::engine::math::{dot, sub};
 use crate::engine::mesh::{topology, Surface};
 use crate::engine::multires::{resample, FacePoint, ResampleError, ResampleParams};
 use crate::engine::texture::sample::MaterialSampler;
@@ -61,8 +62,6 @@ pub fn synthesis_mesh(
 /// Barycentric coordinates of `p` in the triangle `t` (least squares in the triangle's plane;
 /// clamped to the triangle and renormalized).
 pub fn barycentric_in(t: [[f32; 3]; 3], p: [f32; 3]) -> [f32; 3] {
-    let sub = |a: [f32; 3], b: [f32; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    let dot = |a: [f32; 3], b: [f32; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
     let (e0, e1, d) = (sub(t[1], t[0]), sub(t[2], t[0]), sub(p, t[0]));
     let (a, b, c) = (dot(e0, e0), dot(e0, e1), dot(e1, e1));
     let (r0, r1) = (dot(d, e0), dot(d, e1));
