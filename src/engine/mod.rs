@@ -10,5 +10,6 @@ pub mod mesh;
 pub mod methods;
 pub mod multires;
 pub mod pipeline;
+pub mod rng;
 pub mod spatial;
 pub mod texture;

@@ -20,10 +20,11 @@
 use rayon::prelude::*;
 
 use super::collapse::{decimate, CollapseRules};
-use super::vertex_tree::{build_tree, descendant_range, SplitMix64, TreeLevel};
+use super::vertex_tree::{build_tree, descendant_range, TreeLevel};
 use super::FacePoint;
 use crate::engine::control::{Cancelled, Control};
 use crate::engine::mesh::Surface;
+use crate::engine::rng::SplitMix64;
 use crate::engine::spatial::{closest_point_on_triangle, Bvh};
 
 /// Parameters of [`build_hierarchy`].

@@ -25,12 +25,12 @@ use crate::engine::geometry::expmap::RadiusUnit;
 use crate::engine::geometry::fans::{FanParams, FanSampler, FieldRef};
 use crate::engine::geometry::heat::Source;
 use crate::engine::mesh::Surface;
-use crate::engine::multires::SplitMix64;
+use crate::engine::rng::{mix, SplitMix64};
 
 use super::features::{automatic_features, geodesic_affinities, AffinityPair, AffinityReport};
 use super::fidelity::{measure, Fidelity, FidelityInput};
 use super::levels::{erode, MeshLevels};
-use super::matcher::{bfs_order, components, mix, EStep, Nnf, PatchSpace};
+use super::matcher::{bfs_order, components, EStep, Nnf, PatchSpace};
 use super::upsample::{upsample, Side};
 use super::vote::{nearest_neighbour_colors, vote, SourcePatches, VoteStencil};
 use super::{MeshMatchError, MeshMatchParams, ShapeFeatures};
