@@ -24,7 +24,10 @@ pub fn mix(seed: u64, a: u64, b: u64) -> u64 {
 /// A well-mixed 64-bit hash of `seed` and `index`: the `index + 1`-th output of a SplitMix64
 /// seeded with `seed`, found without stepping through the ones before it.
 pub fn hash64(seed: u64, index: u64) -> u64 {
-    finalize(seed.wrapping_add(index.wrapping_mul(GOLDEN)).wrapping_add(GOLDEN))
+    finalize(
+        seed.wrapping_add(index.wrapping_mul(GOLDEN))
+            .wrapping_add(GOLDEN),
+    )
 }
 
 /// A uniform number in `[0, 1)` from [`hash64`] (53 random bits).

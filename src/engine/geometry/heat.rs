@@ -37,12 +37,10 @@
 
 use rayon::prelude::*;
 
-use super::laplacian::{
-    all_face_terms, cotan_laplacian, GeometryError, LaplacianParams, MassKind,
-};
-use crate::engine::math::{cross, dot, length, sub};
+use super::laplacian::{all_face_terms, cotan_laplacian, GeometryError, LaplacianParams, MassKind};
 use crate::engine::control::Control;
 use crate::engine::linalg::{NumericCholesky, SymbolicCholesky};
+use crate::engine::math::{cross, dot, length, sub};
 use crate::engine::mesh::{topology, Surface};
 
 /// Boundary condition of the heat flow step.
