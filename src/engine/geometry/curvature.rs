@@ -28,10 +28,10 @@
 use rayon::prelude::*;
 
 use super::laplacian::{
-    all_face_terms, face_points, is_degenerate, validate_surface, vertex_faces, GeometryError,
-    MassKind,
+    all_face_terms, face_points, is_degenerate, validate_surface, GeometryError, MassKind,
 };
 use crate::engine::math::{cross, dot, normalize, scale, sub};
+use crate::engine::mesh::csr::vertex_faces;
 use crate::engine::mesh::Surface;
 
 /// Parameters of [`principal_curvatures`].

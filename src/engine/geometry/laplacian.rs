@@ -32,6 +32,7 @@ use rayon::prelude::*;
 use crate::engine::control::Cancelled;
 use crate::engine::linalg::{LinalgError, SparsityPattern, SymmetricMatrix};
 use crate::engine::math::{cross, dot, length, sub};
+use crate::engine::mesh::csr::vertex_faces;
 use crate::engine::mesh::Surface;
 
 /// Errors of the geometry operators.
@@ -201,29 +202,6 @@ pub(crate) fn all_face_terms(surface: &Surface, kind: MassKind, max_cot: f64) ->
         .with_min_len(4096)
         .map(|f| face_terms(surface, f, kind, max_cot))
         .collect()
-}
-
-/// Vertex → incident faces in CSR form (faces ascending).
-pub(crate) fn vertex_faces(surface: &Surface) -> (Vec<u32>, Vec<u32>) {
-    let nv = surface.positions.len();
-    let mut offsets = vec![0u32; nv + 1];
-    for f in &surface.faces {
-        for &v in f {
-            offsets[v as usize + 1] += 1;
-        }
-    }
-    for v in 0..nv {
-        offsets[v + 1] += offsets[v];
-    }
-    let mut cursor = offsets.clone();
-    let mut faces = vec![0u32; offsets[nv] as usize];
-    for (fi, f) in surface.faces.iter().enumerate() {
-        for &v in f {
-            faces[cursor[v as usize] as usize] = fi as u32;
-            cursor[v as usize] += 1;
-        }
-    }
-    (offsets, faces)
 }
 
 pub(crate) fn validate_surface(surface: &Surface) -> Result<(), GeometryError> {

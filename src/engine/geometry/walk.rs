@@ -23,8 +23,9 @@
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
-use super::laplacian::{vertex_faces, GeometryError};
+use super::laplacian::GeometryError;
 use crate::engine::math::{dot, length, sub};
+use crate::engine::mesh::csr::vertex_faces;
 use crate::engine::mesh::Surface;
 
 /// Distance metric of a walk.

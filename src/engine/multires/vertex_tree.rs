@@ -15,6 +15,8 @@
 
 use std::ops::Range;
 
+use crate::engine::mesh::csr::group_by_key;
+
 /// Tree order of one level.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub(crate) struct TreeLevel {
@@ -39,21 +41,11 @@ pub(crate) fn build_tree(parents: &[&[u32]], counts: &[usize]) -> Vec<TreeLevel>
         let parent = parents[l];
         let coarse = &out[l + 1];
         // Counting sort of the fine vertices by their parent's rank (stable: ascending index).
-        let nc = counts[l + 1];
-        let mut offsets = vec![0u32; nc + 1];
-        for &p in parent {
-            offsets[coarse.rank[p as usize] as usize + 1] += 1;
-        }
-        for k in 0..nc {
-            offsets[k + 1] += offsets[k];
-        }
-        let mut cursor = offsets.clone();
-        let mut order = vec![0u32; parent.len()];
-        for (v, &p) in parent.iter().enumerate() {
-            let c = &mut cursor[coarse.rank[p as usize] as usize];
-            order[*c as usize] = v as u32;
-            *c += 1;
-        }
+        let by_parent = parent
+            .iter()
+            .enumerate()
+            .map(|(v, &p)| (coarse.rank[p as usize], v as u32));
+        let (offsets, order) = group_by_key(counts[l + 1], by_parent);
         let mut rank = vec![0u32; parent.len()];
         for (i, &v) in order.iter().enumerate() {
             rank[v as usize] = i as u32;

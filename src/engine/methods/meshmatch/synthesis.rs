@@ -17,7 +17,7 @@ use crate::engine::asset::Asset;
 use crate::engine::control::Control;
 use crate::engine::math::{dot, sub};
 use crate::engine::mesh::{topology, Surface};
-use crate::engine::multires::{resample, FacePoint, ResampleError, ResampleParams};
+use crate::engine::multires::{resample, ResampleError, ResampleParams};
 use crate::engine::texture::sample::MaterialSampler;
 
 /// A synthesis mesh: resampled surface plus the link of each vertex to the input surface.
@@ -141,37 +141,4 @@ pub fn synthesis_colors(asset: &Asset, input: &Surface, mesh: &SynthesisMesh) ->
             sum.map(|x| x / weight)
         })
         .collect()
-}
-
-/// Vertex neighbours (1-ring) of a surface, CSR: `(offsets, neighbours)`, each list ascending.
-pub fn vertex_neighbours(surface: &Surface) -> (Vec<u32>, Vec<u32>) {
-    let nv = surface.vertex_count();
-    let mut lists: Vec<Vec<u32>> = vec![Vec::new(); nv];
-    for f in &surface.faces {
-        for i in 0..3 {
-            let (a, b) = (f[i], f[(i + 1) % 3]);
-            if a != b {
-                lists[a as usize].push(b);
-                lists[b as usize].push(a);
-            }
-        }
-    }
-    let mut offsets = Vec::with_capacity(nv + 1);
-    let mut out = Vec::new();
-    offsets.push(0u32);
-    for mut l in lists {
-        l.sort_unstable();
-        l.dedup();
-        out.extend_from_slice(&l);
-        offsets.push(out.len() as u32);
-    }
-    (offsets, out)
-}
-
-/// The point of `surface` closest to `p` as (face, barycentric), through a prepared BVH.
-pub fn locate(bvh: &crate::engine::spatial::Bvh, p: [f32; 3]) -> Option<FacePoint> {
-    bvh.closest_point(p, f32::INFINITY).map(|h| FacePoint {
-        face: h.face,
-        bary: h.bary,
-    })
 }
