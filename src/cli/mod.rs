@@ -1,6 +1,7 @@
 //! Subcommands of the `retex` binary.
 
 pub mod bench;
+pub mod bench_geometry;
 pub mod bench_meshmatch;
 pub mod inspect;
 pub mod preview;
