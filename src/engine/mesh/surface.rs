@@ -32,28 +32,6 @@ use rayon::prelude::*;
 use crate::engine::asset::Asset;
 use crate::engine::math::{cross, dot, normalize, sub, to_f32};
 
-/// Index of a vertex of a [`Surface`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct VertexId(pub u32);
-
-impl VertexId {
-    /// The index as `usize`.
-    pub fn index(self) -> usize {
-        self.0 as usize
-    }
-}
-
-/// Index of a face of a [`Surface`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct FaceId(pub u32);
-
-impl FaceId {
-    /// The index as `usize`.
-    pub fn index(self) -> usize {
-        self.0 as usize
-    }
-}
-
 /// Where one corner of a surface face came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Corner {
