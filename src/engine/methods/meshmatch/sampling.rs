@@ -1,7 +1,7 @@
-//! Synthesis meshes of MeshMatch (Chen et al. 2012, §4: the texture is "stored on vertices"):
-//! the welded input surface resampled by longest-edge bisection to a requested vertex count, so
-//! the output resolution does not depend on how the asset was tessellated (DESIGN.md, "dense
-//! resampling"). Resampling never moves the geometry; every synthesis vertex knows its
+//! Sampling: the synthesis meshes of MeshMatch (Chen et al. 2012, §4: the texture is "stored on
+//! vertices"): the welded input surface resampled by longest-edge bisection to a requested vertex
+//! count, so the output resolution does not depend on how the asset was tessellated (DESIGN.md,
+//! "dense resampling"). Resampling never moves the geometry; every synthesis vertex knows its
 //! (face, barycentric) point on the input surface.
 //!
 //! The source's color per synthesis vertex is its base color (factor × texture × COLOR_0, linear)

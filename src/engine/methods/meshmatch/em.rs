@@ -1,10 +1,11 @@
-//! The MeshMatch optimization on two synthesis meshes (Chen et al. 2012, §4, Figure 2): build both
-//! hierarchies, compute the shape features (§4.1: HKS + up, or geodesic affinities to the
-//! correspondences, or both), then coarse to fine: initialize the nearest-neighbour field at
-//! random on the coarsest level or upsample it from the coarser one (Figure 6), vote the target
-//! colours, and iterate EM — E-step propagation and random search ([`super::matcher`]), M-step
-//! voting ([`super::vote`]) — until the field stabilizes or `iterations` passes ran. At the finest
-//! level the colours are finally copied from the matches (nearest-neighbour reconstruction) unless
+//! [`synthesize`]: the MeshMatch optimization, a coarse-to-fine EM on two synthesis meshes (Chen
+//! et al. 2012, §4, Figure 2): build both hierarchies, compute the shape
+//! features (§4.1: HKS + up, or geodesic affinities to the correspondences, or both), then coarse
+//! to fine: initialize the nearest-neighbour field at random on the coarsest
+//! level or upsample it from the coarser one (Figure 6), vote the target colours, and iterate
+//! EM — E-step propagation and random search ([`super::matcher`]), M-step voting
+//! ([`super::vote`]) — until the field stabilizes or `iterations` passes ran. At the finest level
+//! the colours are finally copied from the matches (nearest-neighbour reconstruction) unless
 //! disabled.
 //!
 //! Colours are matched in units of their standard deviation over the source; each shape dimension
