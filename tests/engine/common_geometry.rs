@@ -8,6 +8,7 @@ use retex::engine::geometry::curvature::{principal_curvatures, CurvatureParams};
 use retex::engine::geometry::laplacian::{cotan_laplacian, mass_matrix, LaplacianParams, MassKind};
 use retex::engine::mesh::primitives::{icosphere, jitter};
 use retex::engine::mesh::Surface;
+use retex::engine::rng::SplitMix64;
 
 /// Reads `v` and `f` records of an OBJ file (vertex order kept, polygons fan-triangulated,
 /// `v/vt/vn` and negative indices handled, no welding) into a surface.
@@ -82,17 +83,8 @@ pub fn write_i64(dir: &Path, name: &str, shape: &[usize], values: &[i64]) {
 
 /// Deterministic values in [-1, 1).
 pub fn random_vec(n: usize, seed: u64) -> Vec<f64> {
-    let mut s = seed;
-    (0..n)
-        .map(|_| {
-            s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = s;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            z ^= z >> 31;
-            (z >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        })
-        .collect()
+    let mut rng = SplitMix64::new(seed);
+    (0..n).map(|_| rng.signed_unit_f64()).collect()
 }
 
 /// A sphere of radius `r` whose vertices were jittered and pushed back onto the sphere:

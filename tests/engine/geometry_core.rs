@@ -543,31 +543,6 @@ fn crosscheck_libigl_export() {
     common_geometry::export_for_libigl();
 }
 
-/// Prints the geometry benchmark rows (release build: `cargo test --release --test engine
-/// geometry_core::bench_geometry_64k -- --ignored --nocapture`).
-#[test]
-#[ignore = "benchmark: run with --ignored --nocapture"]
-fn bench_geometry_64k() {
-    use retex::engine::geometry::bench::{bench_geometry, peak_memory_mib};
-    let runs = std::env::var("RETEX_BENCH_RUNS")
-        .ok()
-        .and_then(|r| r.parse().ok())
-        .unwrap_or(5);
-    let rows = bench_geometry(80, runs).unwrap();
-    for r in &rows {
-        eprintln!(
-            "{:<64} median {:>10.3} ms   min {:>10.3} ms   ({} runs)",
-            r.stage,
-            r.median_s * 1e3,
-            r.min_s * 1e3,
-            r.runs
-        );
-    }
-    if let Some(mib) = peak_memory_mib() {
-        eprintln!("peak resident memory (VmHWM): {mib:.0} MiB");
-    }
-}
-
 #[test]
 fn results_are_identical_for_any_thread_count() {
     let s = jittered_sphere(1.0, 40, 0.01);

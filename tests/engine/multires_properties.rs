@@ -12,8 +12,9 @@ use retex::engine::control::Control;
 use retex::engine::mesh::{build_surface, topology, Surface, WeldParams};
 use retex::engine::multires::{
     build_hierarchy, edge_length_for_vertex_count, refine, resample, FacePoint, Hierarchy,
-    HierarchyError, HierarchyParams, RefineParams, Refined, ResampleParams, SplitMix64,
+    HierarchyError, HierarchyParams, RefineParams, Refined, ResampleParams,
 };
+use retex::engine::rng::SplitMix64;
 use retex::engine::spatial::Bvh;
 
 // ---------------------------------------------------------------------------------------------

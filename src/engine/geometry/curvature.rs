@@ -28,9 +28,10 @@
 use rayon::prelude::*;
 
 use super::laplacian::{
-    all_face_terms, cross, dot, face_points, is_degenerate, norm, sub, validate_surface,
-    vertex_faces, GeometryError, MassKind,
+    all_face_terms, face_points, is_degenerate, validate_surface, GeometryError, MassKind,
 };
+use crate::engine::math::{cross, dot, normalize, scale, sub};
+use crate::engine::mesh::csr::vertex_faces;
 use crate::engine::mesh::Surface;
 
 /// Parameters of [`principal_curvatures`].
@@ -61,19 +62,6 @@ pub struct Curvature {
     pub normals: Vec<[f64; 3]>,
 }
 
-fn unit(a: [f64; 3]) -> [f64; 3] {
-    let l = norm(a);
-    if l > 0.0 {
-        a.map(|c| c / l)
-    } else {
-        [0.0; 3]
-    }
-}
-
-fn scale(a: [f64; 3], s: f64) -> [f64; 3] {
-    a.map(|c| c * s)
-}
-
 /// Vertex normals with Max 1999 weights, f64, unit (zero where undefined).
 pub fn max_vertex_normals(surface: &Surface) -> Vec<[f64; 3]> {
     let mut acc = vec![[0.0; 3]; surface.positions.len()];
@@ -93,7 +81,7 @@ pub fn max_vertex_normals(surface: &Surface) -> Vec<[f64; 3]> {
             }
         }
     }
-    acc.into_iter().map(unit).collect()
+    acc.into_iter().map(normalize).collect()
 }
 
 /// A unit tangent vector at normal `n` (deterministic: from the axis least aligned with `n`).
@@ -103,7 +91,7 @@ fn tangent_of(n: [f64; 3]) -> [f64; 3] {
         .unwrap_or(0);
     let mut axis = [0.0; 3];
     axis[k] = 1.0;
-    unit(sub(axis, scale(n, dot(axis, n))))
+    normalize(sub(axis, scale(n, dot(axis, n))))
 }
 
 /// Rotates `x` (tangent at unit normal `a`) into the plane of unit normal `b`, about `a × b`.
@@ -130,8 +118,8 @@ fn face_tensor(surface: &Surface, fi: usize, normals: &[[f64; 3]]) -> FaceTensor
     let f = surface.faces[fi];
     let p = face_points(surface, fi);
     let n = f.map(|v| normals[v as usize]);
-    let uf = unit(sub(p[1], p[0]));
-    let nf = unit(cross(sub(p[1], p[0]), sub(p[2], p[0])));
+    let uf = normalize(sub(p[1], p[0]));
+    let nf = normalize(cross(sub(p[1], p[0]), sub(p[2], p[0])));
     let vf = cross(nf, uf);
     // Normal equations of the 6 × 3 least-squares system.
     let mut m = [[0.0; 3]; 3];
@@ -237,7 +225,7 @@ pub fn principal_curvatures(
             let (k1, k2) = (mean + radius, mean - radius);
             let theta = 0.5 * (2.0 * f).atan2(e - g);
             let (c, s) = (theta.cos(), theta.sin());
-            let d1 = unit([
+            let d1 = normalize([
                 c * up[0] + s * vp[0],
                 c * up[1] + s * vp[1],
                 c * up[2] + s * vp[2],

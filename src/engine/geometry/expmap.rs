@@ -30,6 +30,7 @@
 //! the frame's tangent; `r = |U|` in world units. Written by hand: no crate does this.
 
 use super::super::control::{Cancelled, Control};
+use super::super::mesh::csr::{directed_edges, group_by_key};
 use super::super::mesh::surface::Surface;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -354,25 +355,8 @@ pub(crate) struct Connection {
 impl Connection {
     pub(crate) fn new(surface: &Surface, frames: &LocalFrames) -> Self {
         let nv = surface.vertex_count();
-        let mut pairs: Vec<(u32, u32)> = Vec::with_capacity(surface.faces.len() * 6);
-        for f in &surface.faces {
-            for i in 0..3 {
-                let (a, b) = (f[i], f[(i + 1) % 3]);
-                if a != b {
-                    pairs.push((a, b));
-                    pairs.push((b, a));
-                }
-            }
-        }
-        pairs.par_sort_unstable();
-        pairs.dedup();
-        let mut offsets = vec![0u32; nv + 1];
-        for &(a, _) in &pairs {
-            offsets[a as usize + 1] += 1;
-        }
-        for v in 0..nv {
-            offsets[v + 1] += offsets[v];
-        }
+        let pairs = directed_edges(surface);
+        let (offsets, neighbors) = group_by_key(nv, pairs.iter().copied());
         let (edge, transport): (Vec<[f32; 2]>, Vec<[f32; 2]>) = pairs
             .par_iter()
             .map(|&(r, q)| {
@@ -404,7 +388,7 @@ impl Connection {
             .unzip();
         Connection {
             offsets,
-            neighbors: pairs.into_iter().map(|p| p.1).collect(),
+            neighbors,
             edge,
             transport,
         }

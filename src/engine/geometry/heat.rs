@@ -37,12 +37,10 @@
 
 use rayon::prelude::*;
 
-use super::laplacian::{
-    all_face_terms, cotan_laplacian, cross, dot, norm, sub, GeometryError, LaplacianParams,
-    MassKind,
-};
+use super::laplacian::{all_face_terms, cotan_laplacian, GeometryError, LaplacianParams, MassKind};
 use crate::engine::control::Control;
 use crate::engine::linalg::{NumericCholesky, SymbolicCholesky};
+use crate::engine::math::{cross, dot, length, sub};
 use crate::engine::mesh::{topology, Surface};
 
 /// Boundary condition of the heat flow step.
@@ -178,7 +176,7 @@ impl HeatGeodesics {
             .collect();
         for j in 0..n {
             for &i in pattern.column(j).iter().filter(|&&i| i > j) {
-                edge_sum += norm(sub(positions[i], positions[j]));
+                edge_sum += length(sub(positions[i], positions[j]));
                 edge_count += 1;
             }
         }
@@ -229,7 +227,7 @@ impl HeatGeodesics {
             .map(|f| {
                 let p = surface.faces[f].map(|v| positions[v as usize]);
                 let nrm = cross(sub(p[1], p[0]), sub(p[2], p[0]));
-                let twice_area = norm(nrm);
+                let twice_area = length(nrm);
                 if terms[f].cot == [0.0; 3] || twice_area.is_nan() || twice_area <= 0.0 {
                     return [[0.0; 3]; 3];
                 }
@@ -382,7 +380,7 @@ impl HeatGeodesics {
                         gu[k] += ui * g[i][k];
                     }
                 }
-                let len = norm(gu);
+                let len = length(gu);
                 if !len.is_finite() || len <= 0.0 {
                     return [0.0; 3];
                 }
@@ -422,7 +420,7 @@ impl HeatGeodesics {
             let src: [f64; 3] =
                 std::array::from_fn(|k| bary[0] * p[0][k] + bary[1] * p[1][k] + bary[2] * p[2][k]);
             let value: f64 = (0..3)
-                .map(|k| bary[k] * (phi[f[k] as usize] - norm(sub(p[k], src))))
+                .map(|k| bary[k] * (phi[f[k] as usize] - length(sub(p[k], src))))
                 .sum();
             let c = self.vertex_component[f[0] as usize] as usize;
             sum[c] += value;

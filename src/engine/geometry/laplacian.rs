@@ -31,6 +31,8 @@ use rayon::prelude::*;
 
 use crate::engine::control::Cancelled;
 use crate::engine::linalg::{LinalgError, SparsityPattern, SymmetricMatrix};
+use crate::engine::math::{cross, dot, length, sub};
+use crate::engine::mesh::csr::vertex_faces;
 use crate::engine::mesh::Surface;
 
 /// Errors of the geometry operators.
@@ -132,26 +134,6 @@ pub(crate) struct FaceTerms {
     pub area: [f64; 3],
 }
 
-pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-pub(crate) fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-pub(crate) fn norm(a: [f64; 3]) -> f64 {
-    dot(a, a).sqrt()
-}
-
 /// Corner positions of `face` in f64.
 pub(crate) fn face_points(surface: &Surface, face: usize) -> [[f64; 3]; 3] {
     surface.faces[face].map(|v| surface.positions[v as usize].map(|c| c as f64))
@@ -166,7 +148,7 @@ pub(crate) fn is_degenerate(surface: &Surface, face: usize) -> bool {
     let p = face_points(surface, face);
     let e = [sub(p[1], p[0]), sub(p[2], p[1]), sub(p[0], p[2])];
     let longest2 = e.iter().map(|x| dot(*x, *x)).fold(0.0, f64::max);
-    let twice_area = norm(cross(e[0], sub(p[2], p[0])));
+    let twice_area = length(cross(e[0], sub(p[2], p[0])));
     twice_area.is_nan() || twice_area <= f64::EPSILON * longest2
 }
 
@@ -181,7 +163,7 @@ pub(crate) fn face_terms(
         return FaceTerms::default();
     }
     let p = face_points(surface, face);
-    let twice_area = norm(cross(sub(p[1], p[0]), sub(p[2], p[0])));
+    let twice_area = length(cross(sub(p[1], p[0]), sub(p[2], p[0])));
     let area = 0.5 * twice_area;
     let mut cot = [0.0; 3];
     let mut raw = [0.0; 3];
@@ -220,29 +202,6 @@ pub(crate) fn all_face_terms(surface: &Surface, kind: MassKind, max_cot: f64) ->
         .with_min_len(4096)
         .map(|f| face_terms(surface, f, kind, max_cot))
         .collect()
-}
-
-/// Vertex → incident faces in CSR form (faces ascending).
-pub(crate) fn vertex_faces(surface: &Surface) -> (Vec<u32>, Vec<u32>) {
-    let nv = surface.positions.len();
-    let mut offsets = vec![0u32; nv + 1];
-    for f in &surface.faces {
-        for &v in f {
-            offsets[v as usize + 1] += 1;
-        }
-    }
-    for v in 0..nv {
-        offsets[v + 1] += offsets[v];
-    }
-    let mut cursor = offsets.clone();
-    let mut faces = vec![0u32; offsets[nv] as usize];
-    for (fi, f) in surface.faces.iter().enumerate() {
-        for &v in f {
-            faces[cursor[v as usize] as usize] = fi as u32;
-            cursor[v as usize] += 1;
-        }
-    }
-    (offsets, faces)
 }
 
 pub(crate) fn validate_surface(surface: &Surface) -> Result<(), GeometryError> {

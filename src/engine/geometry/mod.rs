@@ -3,7 +3,6 @@
 //! angle, occlusion, shape diameter), the Laplace–Beltrami spectrum and spectral signatures
 //! (HKS, WKS). Each operator is a plain function with a `Params` struct.
 
-pub mod bench;
 pub mod curvature;
 pub mod expmap;
 pub mod fans;

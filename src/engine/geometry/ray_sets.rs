@@ -27,6 +27,7 @@ use rayon::prelude::*;
 
 use crate::engine::control::{Cancelled, Control};
 use crate::engine::mesh::surface::Surface;
+use crate::engine::rng::hash_unit;
 use crate::engine::spatial::{Bvh, RayHit};
 
 /// Errors of the ray-cast features.
@@ -95,21 +96,6 @@ pub fn fibonacci_cap(n: usize, z_min: f32) -> Vec<[f32; 3]> {
 /// `n` spherical-Fibonacci unit directions over the whole sphere (see [`fibonacci_cap`]).
 pub fn fibonacci_sphere(n: usize) -> Vec<[f32; 3]> {
     fibonacci_cap(n, -1.0)
-}
-
-/// SplitMix64 finalizer of `seed` and `index`: a well-mixed 64-bit hash.
-pub fn hash64(seed: u64, index: u64) -> u64 {
-    let mut z = seed
-        .wrapping_add(index.wrapping_mul(0x9E37_79B9_7F4A_7C15))
-        .wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
-}
-
-/// A uniform number in `[0, 1)` from [`hash64`].
-pub fn hash_unit(seed: u64, index: u64) -> f64 {
-    (hash64(seed, index) >> 11) as f64 / (1u64 << 53) as f64
 }
 
 /// An orthonormal frame `(t, b, n)`; local `(x, y, z)` maps to `x t + y b + z n`.

@@ -23,7 +23,9 @@
 use std::cmp::Ordering;
 use std::collections::BinaryHeap;
 
-use super::laplacian::{dot, norm, sub, vertex_faces, GeometryError};
+use super::laplacian::GeometryError;
+use crate::engine::math::{dot, length, sub};
+use crate::engine::mesh::csr::vertex_faces;
 use crate::engine::mesh::Surface;
 
 /// Distance metric of a walk.
@@ -99,7 +101,7 @@ impl WalkGraph {
         let mut nbr_lengths = Vec::with_capacity(nbrs.len());
         for v in 0..nv {
             for &w in &nbrs[nbr_offsets[v] as usize..nbr_offsets[v + 1] as usize] {
-                nbr_lengths.push(norm(sub(positions[w as usize], positions[v])));
+                nbr_lengths.push(length(sub(positions[w as usize], positions[v])));
             }
         }
         Self {
@@ -249,7 +251,7 @@ impl<'g> Walker<'g> {
         let (pa, pb, pc) = (p[a as usize], p[b as usize], p[c as usize]);
         let (da, db) = (self.dist[a as usize], self.dist[b as usize]);
         let ab = sub(pb, pa);
-        let len = norm(ab);
+        let len = length(ab);
         if len.is_nan() || len <= 0.0 {
             return None;
         }

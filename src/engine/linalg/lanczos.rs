@@ -38,6 +38,7 @@ use rayon::prelude::*;
 
 use super::{LinalgError, NumericCholesky};
 use crate::engine::control::Cancelled;
+use crate::engine::rng::SplitMix64;
 
 /// Rows per task in products over the long dimension (fixed, so sums do not depend on threads).
 const ROW_CHUNK: usize = 4096;
@@ -183,27 +184,13 @@ fn m_dot(x: MatRef<'_, f64>, i: usize, y: MatRef<'_, f64>, j: usize, mass: &[f64
     (0..mass.len()).map(|r| mass[r] * xc[r] * yc[r]).sum()
 }
 
-/// SplitMix64: a tiny deterministic generator for start vectors.
-struct SplitMix(u64);
-
-impl SplitMix {
-    fn next_f64(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^= z >> 31;
-        (z >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-    }
-}
-
 /// `M`-orthonormalizes the columns of `w` against `q` (twice) and among themselves. Returns the
 /// coefficients `h = Qᵀ M W₀` and the upper-triangular `R` with `W₀ = Q h + W R`.
 fn orthonormalize(
     w: &mut Mat<f64>,
     q: MatRef<'_, f64>,
     mass: &[f64],
-    rng: &mut SplitMix,
+    rng: &mut SplitMix64,
 ) -> (Mat<f64>, Mat<f64>) {
     let b = w.ncols();
     let mut h = Mat::<f64>::zeros(q.ncols(), b);
@@ -235,7 +222,7 @@ fn orthonormalize(
             w.col_mut(c).iter_mut().for_each(|x| *x /= norm);
         } else {
             // Breakdown: an invariant subspace; continue with a fresh direction (R[c, c] = 0).
-            let mut fresh = Mat::<f64>::from_fn(mass.len(), 1, |_, _| rng.next_f64());
+            let mut fresh = Mat::<f64>::from_fn(mass.len(), 1, |_, _| rng.signed_unit_f64());
             for _ in 0..2 {
                 if q.ncols() > 0 {
                     let p = gram(q, mass_times(fresh.as_ref(), mass).as_ref());
@@ -359,11 +346,11 @@ pub fn shift_invert_lanczos_with(
     }
     // Ritz vectors kept at a restart (then at least one block fits before the next one).
     let keep = k + (cap - b - k) / 2;
-    let mut rng = SplitMix(params.seed);
+    let mut rng = SplitMix64::new(params.seed);
     // Basis: up to `cap` expanded columns plus the newest block.
     let mut q = Mat::<f64>::zeros(n, cap + b);
     let mut h = Mat::<f64>::zeros(cap + b, cap);
-    let mut start = Mat::<f64>::from_fn(n, b, |_, _| rng.next_f64());
+    let mut start = Mat::<f64>::from_fn(n, b, |_, _| rng.signed_unit_f64());
     orthonormalize(&mut start, q.as_ref().subcols(0, 0), mass, &mut rng);
     q.as_mut().subcols_mut(0, b).copy_from(&start);
     drop(start);

@@ -4,6 +4,7 @@
 //! Units are the asset's world units; faces wind counter-clockwise around their outward normal
 //! (see [`surface`] and [`mod@topology`] for the details).
 
+pub mod csr;
 pub mod primitives;
 pub mod surface;
 pub mod topology;

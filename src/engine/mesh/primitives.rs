@@ -12,6 +12,8 @@
 use std::collections::HashMap;
 
 use super::surface::Surface;
+use crate::engine::math::normalize;
+use crate::engine::rng::{SplitMix64, GOLDEN};
 
 /// The 12 vertices (unit length) and 20 counter-clockwise faces of a regular icosahedron.
 fn icosahedron() -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
@@ -54,11 +56,6 @@ fn icosahedron() -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
         [9, 8, 1],
     ];
     (v, f)
-}
-
-fn normalize(p: [f64; 3]) -> [f64; 3] {
-    let l = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-    [p[0] / l, p[1] / l, p[2] / l]
 }
 
 /// An icosphere by recursive midpoint subdivision: the icosahedron with every face split in four
@@ -248,19 +245,10 @@ pub fn cylinder(radius: f64, height: f64, segments: usize, rings: usize) -> Surf
 /// `amplitude` per coordinate along the axes in `axes` (e.g. `[true, true, false]` keeps a grid
 /// planar). `seed` selects the offsets. For robustness tests on irregular meshes.
 pub fn jitter(surface: &mut Surface, amplitude: f64, axes: [bool; 3], seed: u64) {
-    let mut state = seed ^ 0x9E37_79B9_7F4A_7C15;
-    let mut next = || {
-        // SplitMix64.
-        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^= z >> 31;
-        (z >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-    };
+    let mut rng = SplitMix64::new(seed ^ GOLDEN);
     for p in &mut surface.positions {
         for k in 0..3 {
-            let d = next() * amplitude;
+            let d = rng.signed_unit_f64() * amplitude;
             if axes[k] {
                 p[k] = (p[k] as f64 + d) as f32;
             }

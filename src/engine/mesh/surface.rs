@@ -30,28 +30,7 @@ use std::collections::HashMap;
 use rayon::prelude::*;
 
 use crate::engine::asset::Asset;
-
-/// Index of a vertex of a [`Surface`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct VertexId(pub u32);
-
-impl VertexId {
-    /// The index as `usize`.
-    pub fn index(self) -> usize {
-        self.0 as usize
-    }
-}
-
-/// Index of a face of a [`Surface`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
-pub struct FaceId(pub u32);
-
-impl FaceId {
-    /// The index as `usize`.
-    pub fn index(self) -> usize {
-        self.0 as usize
-    }
-}
+use crate::engine::math::{cross, dot, normalize, sub, to_f32};
 
 /// Where one corner of a surface face came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -379,31 +358,15 @@ fn is_degenerate(positions: &[[f32; 3]], f: [u32; 3]) -> bool {
         return true;
     }
     let p = f.map(|v| positions[v as usize].map(|c| c as f64));
-    let e1 = sub64(p[1], p[0]);
-    let e2 = sub64(p[2], p[0]);
-    let e3 = sub64(p[2], p[1]);
-    let n = cross64(e1, e2);
-    let n2 = dot64(n, n);
-    let longest2 = dot64(e1, e1).max(dot64(e2, e2)).max(dot64(e3, e3));
+    let e1 = sub(p[1], p[0]);
+    let e2 = sub(p[2], p[0]);
+    let e3 = sub(p[2], p[1]);
+    let n = cross(e1, e2);
+    let n2 = dot(n, n);
+    let longest2 = dot(e1, e1).max(dot(e2, e2)).max(dot(e3, e3));
     let eps = (f32::EPSILON as f64).powi(2);
     // |n| <= eps * longest², compared squared.
     n2 <= eps * eps * longest2 * longest2
-}
-
-fn sub64(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn cross64(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-fn dot64(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 /// A fast, deterministic hasher for small integer keys (multiply-rotate, as in rustc's FxHash).
@@ -570,24 +533,18 @@ impl Surface {
     /// Unit normal of `face` from its winding (`(b - a) × (c - a)`, normalized); `[0, 0, 0]` for a
     /// face of zero area.
     pub fn face_normal(&self, face: usize) -> [f32; 3] {
-        let n = self.face_cross(face);
-        let len = dot64(n, n).sqrt();
-        if len > 0.0 && len.is_finite() {
-            n.map(|c| (c / len) as f32)
-        } else {
-            [0.0; 3]
-        }
+        to_f32(normalize(self.face_cross(face)))
     }
 
     /// Area of `face`, world units squared.
     pub fn face_area(&self, face: usize) -> f32 {
         let n = self.face_cross(face);
-        (0.5 * dot64(n, n).sqrt()) as f32
+        (0.5 * dot(n, n).sqrt()) as f32
     }
 
     fn face_cross(&self, face: usize) -> [f64; 3] {
         let p = self.face_positions(face).map(|v| v.map(|c| c as f64));
-        cross64(sub64(p[1], p[0]), sub64(p[2], p[0]))
+        cross(sub(p[1], p[0]), sub(p[2], p[0]))
     }
 
     /// Angle-weighted vertex normals (Thürmer & Wüthrich 1998): the sum over incident faces of
@@ -597,16 +554,16 @@ impl Surface {
         let mut acc = vec![[0.0f64; 3]; self.positions.len()];
         for f in &self.faces {
             let p = f.map(|v| self.positions[v as usize].map(|c| c as f64));
-            let n = cross64(sub64(p[1], p[0]), sub64(p[2], p[0]));
-            let len = dot64(n, n).sqrt();
+            let n = cross(sub(p[1], p[0]), sub(p[2], p[0]));
+            let len = dot(n, n).sqrt();
             if len <= 0.0 || !len.is_finite() {
                 continue;
             }
             let n = n.map(|c| c / len);
             for k in 0..3 {
-                let e1 = sub64(p[(k + 1) % 3], p[k]);
-                let e2 = sub64(p[(k + 2) % 3], p[k]);
-                let angle = dot64(cross64(e1, e2), n).atan2(dot64(e1, e2));
+                let e1 = sub(p[(k + 1) % 3], p[k]);
+                let e2 = sub(p[(k + 2) % 3], p[k]);
+                let angle = dot(cross(e1, e2), n).atan2(dot(e1, e2));
                 let a = &mut acc[f[k] as usize];
                 for j in 0..3 {
                     a[j] += angle * n[j];
@@ -615,7 +572,7 @@ impl Surface {
         }
         acc.into_iter()
             .map(|n| {
-                let len = dot64(n, n).sqrt();
+                let len = dot(n, n).sqrt();
                 if len > 0.0 {
                     n.map(|c| (c / len) as f32)
                 } else {
@@ -655,7 +612,7 @@ impl Surface {
         (0..self.faces.len())
             .map(|f| {
                 let n = self.face_cross(f);
-                0.5 * dot64(n, n).sqrt()
+                0.5 * dot(n, n).sqrt()
             })
             .sum()
     }

@@ -17,6 +17,7 @@
 //!
 //! Written by hand: a sort-based edge table is all this needs.
 
+use super::csr::group_by_key;
 use super::surface::Surface;
 
 /// Adjacency of a surface, built by [`topology`].
@@ -124,8 +125,7 @@ pub fn topology(surface: &Surface) -> Topology {
         *comp = root_label[r];
     }
 
-    // Vertex → faces CSR (counting sort; faces ascending, each face once per vertex).
-    let mut counts = vec![0u32; nv + 1];
+    // Vertex → faces CSR (faces ascending, each face once per vertex).
     let distinct = |face: &[u32; 3]| {
         let mut out = [Some(face[0]), None, None];
         if face[1] != face[0] {
@@ -136,24 +136,13 @@ pub fn topology(surface: &Surface) -> Topology {
         }
         out
     };
-    for face in &surface.faces {
-        for v in distinct(face).into_iter().flatten() {
-            counts[v as usize + 1] += 1;
-        }
-    }
-    for v in 0..nv {
-        counts[v + 1] += counts[v];
-    }
-    let vertex_faces_offsets = counts.clone();
-    let mut cursor = counts;
-    let mut vertex_faces = vec![0u32; vertex_faces_offsets[nv] as usize];
-    for (f, face) in surface.faces.iter().enumerate() {
-        for v in distinct(face).into_iter().flatten() {
-            let c = &mut cursor[v as usize];
-            vertex_faces[*c as usize] = f as u32;
-            *c += 1;
-        }
-    }
+    let corners = surface.faces.iter().enumerate().flat_map(|(f, face)| {
+        distinct(face)
+            .into_iter()
+            .flatten()
+            .map(move |v| (v, f as u32))
+    });
+    let (vertex_faces_offsets, vertex_faces) = group_by_key(nv, corners);
     let used_vertices = (0..nv)
         .filter(|&v| vertex_faces_offsets[v + 1] > vertex_faces_offsets[v])
         .count();

@@ -11,6 +11,8 @@
 //! With one pair the result is a translation; with two pairs the rotation about the line through
 //! them is not determined and the one nearest to the identity-free solution Jacobi finds is used.
 
+use crate::engine::math::dist2;
+
 /// A similarity transform p ↦ s R p + t.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct Similarity {
@@ -56,10 +58,6 @@ impl Similarity {
             .sum();
         (sum / from.len() as f64).sqrt()
     }
-}
-
-fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
-    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
 }
 
 fn centroid(points: &[[f64; 3]]) -> [f64; 3] {

@@ -33,6 +33,7 @@ use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 
 use crate::engine::control::{Cancelled, StageProgress};
+use crate::engine::math::{cross, dot, sub};
 
 /// How often a level retries edges rejected earlier.
 pub(crate) const RETRY_ROUNDS: usize = 4;
@@ -103,20 +104,6 @@ struct Scratch {
     shared: Vec<u32>,
     na: Vec<u32>,
     nb: Vec<u32>,
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 /// Triangle quality `4√3·area / Σ l²` and the unnormalized normal.

@@ -20,10 +20,12 @@
 use rayon::prelude::*;
 
 use super::collapse::{decimate, CollapseRules};
-use super::vertex_tree::{build_tree, descendant_range, SplitMix64, TreeLevel};
+use super::vertex_tree::{build_tree, descendant_range, TreeLevel};
 use super::FacePoint;
 use crate::engine::control::{Cancelled, Control};
+use crate::engine::mesh::csr::vertex_faces;
 use crate::engine::mesh::Surface;
+use crate::engine::rng::SplitMix64;
 use crate::engine::spatial::{closest_point_on_triangle, Bvh};
 
 /// Parameters of [`build_hierarchy`].
@@ -241,24 +243,7 @@ fn project(
 ) -> Result<Vec<FacePoint>, Cancelled> {
     let bvh = Bvh::build(&coarse.positions, &coarse.faces);
     // Coarse vertex → faces (CSR).
-    let nc = coarse.positions.len();
-    let mut offsets = vec![0u32; nc + 1];
-    for f in &coarse.faces {
-        for &v in f {
-            offsets[v as usize + 1] += 1;
-        }
-    }
-    for v in 0..nc {
-        offsets[v + 1] += offsets[v];
-    }
-    let mut cursor = offsets.clone();
-    let mut vfaces = vec![0u32; offsets[nc] as usize];
-    for (fi, f) in coarse.faces.iter().enumerate() {
-        for &v in f {
-            vfaces[cursor[v as usize] as usize] = fi as u32;
-            cursor[v as usize] += 1;
-        }
-    }
+    let (offsets, vfaces) = vertex_faces(coarse);
     let query = |v: usize, p: [f32; 3]| -> FacePoint {
         let u = parent[v] as usize;
         let mut bound = f32::INFINITY;

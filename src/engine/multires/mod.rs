@@ -18,7 +18,6 @@ pub mod vertex_tree;
 pub use hierarchy::*;
 pub use refine::*;
 pub use resample::*;
-pub use vertex_tree::SplitMix64;
 
 /// A point on a face: face index and barycentric weights of its corners (in the order the face
 /// lists them; they sum to 1).

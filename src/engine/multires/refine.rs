@@ -20,6 +20,7 @@
 use std::collections::HashMap;
 
 use super::FacePoint;
+use crate::engine::math::dist2;
 
 /// Parameters of [`refine`].
 #[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
@@ -78,10 +79,6 @@ impl Refined {
         }
         out
     }
-}
-
-fn dist2(a: [f32; 3], b: [f32; 3]) -> f32 {
-    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
 }
 
 /// The sources of the input vertices: the lowest-numbered face using each, weight 1 on its corner.

@@ -16,6 +16,7 @@ use std::collections::{BinaryHeap, HashMap};
 
 use super::refine::{input_sources, midpoint_source, Refined};
 use crate::engine::control::{Cancelled, Control};
+use crate::engine::math::dist2;
 
 /// Most faces an edge may have and still be split.
 pub const MAX_EDGE_FACES: usize = 4;
@@ -105,8 +106,7 @@ fn key(a: u32, b: u32) -> (u32, u32) {
 }
 
 fn len2(p: &[[f32; 3]], a: u32, b: u32) -> f32 {
-    let (x, y) = (p[a as usize], p[b as usize]);
-    (x[0] - y[0]).powi(2) + (x[1] - y[1]).powi(2) + (x[2] - y[2]).powi(2)
+    dist2(p[a as usize], p[b as usize])
 }
 
 /// Splits longest edges first until `params.max_vertices` vertices or no edge longer than

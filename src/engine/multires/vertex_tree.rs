@@ -10,52 +10,12 @@
 //! draw over that slice is a uniform draw over the subtree's leaves at that level (not the biased
 //! "random child at each step" walk).
 //!
-//! [`SplitMix64`] (Steele, Lea & Flood 2014) is the seeded generator: tiny, fast, and with a
-//! fixed output for a seed, so draws are reproducible. Written by hand to avoid a dependency.
+//! The random draws use the seeded [`SplitMix64`](crate::engine::rng::SplitMix64), so they are
+//! reproducible.
 
 use std::ops::Range;
 
-/// SplitMix64: a small seeded pseudo-random generator (not cryptographic).
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct SplitMix64 {
-    state: u64,
-}
-
-impl SplitMix64 {
-    /// A generator with the given seed.
-    pub fn new(seed: u64) -> Self {
-        Self { state: seed }
-    }
-
-    /// The next 64 random bits.
-    pub fn next_u64(&mut self) -> u64 {
-        self.state = self.state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// A uniform integer in `0..n` (Lemire's multiply-shift with rejection, so exactly uniform).
-    ///
-    /// # Panics
-    /// If `n == 0`.
-    pub fn below(&mut self, n: u64) -> u64 {
-        assert!(n > 0, "SplitMix64::below(0)");
-        let threshold = n.wrapping_neg() % n;
-        loop {
-            let m = (self.next_u64() as u128) * (n as u128);
-            if (m as u64) >= threshold {
-                return (m >> 64) as u64;
-            }
-        }
-    }
-
-    /// A uniform float in `[0, 1)` (24 random bits).
-    pub fn unit_f32(&mut self) -> f32 {
-        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32
-    }
-}
+use crate::engine::mesh::csr::group_by_key;
 
 /// Tree order of one level.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -81,21 +41,11 @@ pub(crate) fn build_tree(parents: &[&[u32]], counts: &[usize]) -> Vec<TreeLevel>
         let parent = parents[l];
         let coarse = &out[l + 1];
         // Counting sort of the fine vertices by their parent's rank (stable: ascending index).
-        let nc = counts[l + 1];
-        let mut offsets = vec![0u32; nc + 1];
-        for &p in parent {
-            offsets[coarse.rank[p as usize] as usize + 1] += 1;
-        }
-        for k in 0..nc {
-            offsets[k + 1] += offsets[k];
-        }
-        let mut cursor = offsets.clone();
-        let mut order = vec![0u32; parent.len()];
-        for (v, &p) in parent.iter().enumerate() {
-            let c = &mut cursor[coarse.rank[p as usize] as usize];
-            order[*c as usize] = v as u32;
-            *c += 1;
-        }
+        let by_parent = parent
+            .iter()
+            .enumerate()
+            .map(|(v, &p)| (coarse.rank[p as usize], v as u32));
+        let (offsets, order) = group_by_key(counts[l + 1], by_parent);
         let mut rank = vec![0u32; parent.len()];
         for (i, &v) in order.iter().enumerate() {
             rank[v as usize] = i as u32;

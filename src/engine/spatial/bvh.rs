@@ -23,7 +23,8 @@
 use glam::Vec3A;
 use rayon::prelude::*;
 
-use super::triangle::{closest_point_on_triangle, dot, ray_triangle, sub};
+use super::triangle::{closest_point_on_triangle, ray_triangle};
+use crate::engine::math::{dot, sub};
 
 /// Most triangles in a leaf.
 pub const MAX_LEAF: usize = 4;

@@ -8,27 +8,7 @@
 //! The ray test is Möller & Trumbore, *Fast, Minimum Storage Ray/Triangle Intersection* (1997),
 //! without back-face culling.
 
-/// `a - b`.
-#[inline(always)]
-pub(crate) fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-/// `a · b`.
-#[inline(always)]
-pub(crate) fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-/// `a × b`.
-#[inline(always)]
-pub(crate) fn cross(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
+use crate::engine::math::{cross, dot, sub};
 
 /// `a + s * d`.
 #[inline(always)]

@@ -426,18 +426,7 @@ pub fn skipped_triangles(triangles: &[[[f32; 2]; 3]]) -> usize {
 mod tests {
     use super::*;
 
-    /// SplitMix64: a tiny deterministic generator for test layouts.
-    struct Rng(u64);
-    impl Rng {
-        fn next_f32(&mut self) -> f32 {
-            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            z ^= z >> 31;
-            (z >> 40) as f32 / (1u64 << 24) as f32
-        }
-    }
+    use crate::engine::rng::SplitMix64 as Rng;
 
     fn area(t: &[[f32; 2]; 3]) -> f64 {
         let (a, b, c) = (t[0], t[1], t[2]);
@@ -489,7 +478,7 @@ mod tests {
     fn jittered_grid_with_fans_on_texel_centers_covers_once() {
         let (w, h) = (64u32, 48u32);
         let n = 8;
-        let mut rng = Rng(7);
+        let mut rng = Rng::new(7);
         // Interior vertices snapped to texel centers (fans meet exactly on a center), boundary on
         // the border.
         let vert = |i: usize, j: usize, rng: &mut Rng| -> [f32; 2] {
@@ -501,7 +490,7 @@ mod tests {
                     (c.floor() + 0.5) / size as f32
                 }
             };
-            let (r1, r2) = (rng.next_f32(), rng.next_f32());
+            let (r1, r2) = (rng.unit_f32(), rng.unit_f32());
             [coord(i, w, r1), coord(j, h, r2)]
         };
         let mut grid = vec![[0.0f32; 2]; (n + 1) * (n + 1)];
@@ -531,14 +520,14 @@ mod tests {
     #[test]
     fn coverage_matches_analytic_area() {
         let (w, h) = (256u32, 256u32);
-        let mut rng = Rng(42);
+        let mut rng = Rng::new(42);
         let mut texels = 0u64;
         let mut analytic = 0.0f64;
         for _ in 0..200 {
             let t = [
-                [rng.next_f32(), rng.next_f32()],
-                [rng.next_f32(), rng.next_f32()],
-                [rng.next_f32(), rng.next_f32()],
+                [rng.unit_f32(), rng.unit_f32()],
+                [rng.unit_f32(), rng.unit_f32()],
+                [rng.unit_f32(), rng.unit_f32()],
             ];
             texels += rasterize_uv_layout(&[t], w, h).covered();
             analytic += area(&t) * (w * h) as f64;
@@ -553,14 +542,14 @@ mod tests {
     #[test]
     fn barycentrics_reproduce_texel_centers() {
         let (w, h) = (256u32, 192u32);
-        let mut rng = Rng(3);
+        let mut rng = Rng::new(3);
         let tris: Vec<[[f32; 2]; 3]> = (0..60)
             .map(|_| {
-                let c = [rng.next_f32() * 0.8 + 0.1, rng.next_f32() * 0.8 + 0.1];
+                let c = [rng.unit_f32() * 0.8 + 0.1, rng.unit_f32() * 0.8 + 0.1];
                 let mut p = || {
                     [
-                        c[0] + (rng.next_f32() - 0.5) * 0.2,
-                        c[1] + (rng.next_f32() - 0.5) * 0.2,
+                        c[0] + (rng.unit_f32() - 0.5) * 0.2,
+                        c[1] + (rng.unit_f32() - 0.5) * 0.2,
                     ]
                 };
                 [p(), p(), p()]
@@ -640,14 +629,14 @@ mod tests {
 
     #[test]
     fn output_is_identical_for_one_and_two_threads() {
-        let mut rng = Rng(11);
+        let mut rng = Rng::new(11);
         let tris: Vec<[[f32; 2]; 3]> = (0..3000)
             .map(|_| {
-                let c = [rng.next_f32() * 3.0 - 1.0, rng.next_f32() * 3.0 - 1.0];
+                let c = [rng.unit_f32() * 3.0 - 1.0, rng.unit_f32() * 3.0 - 1.0];
                 let mut p = || {
                     [
-                        c[0] + (rng.next_f32() - 0.5) * 0.1,
-                        c[1] + (rng.next_f32() - 0.5) * 0.1,
+                        c[0] + (rng.unit_f32() - 0.5) * 0.1,
+                        c[1] + (rng.unit_f32() - 0.5) * 0.1,
                     ]
                 };
                 [p(), p(), p()]

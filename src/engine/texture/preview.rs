@@ -25,6 +25,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::engine::asset::Asset;
+use crate::engine::math::{cross, dot, normal_of, normalize, sub};
 use crate::engine::texture::encode::encode_png_srgb;
 use crate::engine::texture::sample::MaterialSampler;
 
@@ -147,31 +148,6 @@ struct WorldTriangle {
     normal: [f32; 3],
 }
 
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn cross(u: [f32; 3], v: [f32; 3]) -> [f32; 3] {
-    [
-        u[1] * v[2] - u[2] * v[1],
-        u[2] * v[0] - u[0] * v[2],
-        u[0] * v[1] - u[1] * v[0],
-    ]
-}
-
-fn normalize(v: [f32; 3]) -> [f32; 3] {
-    let l = dot(v, v).sqrt();
-    if l > 0.0 && l.is_finite() {
-        v.map(|x| x / l)
-    } else {
-        [0.0; 3]
-    }
-}
-
 /// Every triangle of every instance, in (instance, primitive, triangle) order.
 fn world_triangles(asset: &Asset) -> Vec<WorldTriangle> {
     let mut out = Vec::new();
@@ -186,7 +162,7 @@ fn world_triangles(asset: &Asset) -> Vec<WorldTriangle> {
                 out.push(WorldTriangle {
                     primitive: p as u32,
                     triangle: t as u32,
-                    normal: normalize(cross(sub(w[1], w[0]), sub(w[2], w[0]))),
+                    normal: normal_of(w[0], w[1], w[2]),
                     p: w,
                 });
             }

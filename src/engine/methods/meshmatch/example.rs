@@ -20,7 +20,7 @@ use crate::engine::asset::{Asset, IngestLimits, Sampler};
 use crate::engine::mesh::Surface;
 use crate::engine::texture::sample::{sample_image, MaterialSampler};
 
-use super::synthesis::{barycentric_in, SynthesisMesh};
+use super::sampling::{barycentric_in, SynthesisMesh};
 
 /// A colour channel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]

@@ -20,10 +20,10 @@ use serde::Serialize;
 
 use crate::engine::control::Control;
 use crate::engine::geometry::fans::{FanSampler, FieldRef};
-use crate::engine::multires::SplitMix64;
+use crate::engine::rng::{mix, SplitMix64};
 
 use super::levels::MeshLevels;
-use super::matcher::{bfs_order, components, mix, EStep, Exclusion, Nnf, PatchSpace};
+use super::matcher::{bfs_order, components, EStep, Exclusion, Nnf, PatchSpace};
 use super::MeshMatchError;
 
 /// Passes of propagation and random search per measure.

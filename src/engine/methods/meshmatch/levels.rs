@@ -8,11 +8,10 @@ use rayon::prelude::*;
 
 use crate::engine::control::Control;
 use crate::engine::geometry::expmap::{local_frames, mean_edge_length, FrameParams, LocalFrames};
+use crate::engine::mesh::csr::vertex_neighbours;
 use crate::engine::mesh::Surface;
 use crate::engine::multires::{build_hierarchy, Hierarchy, HierarchyError, HierarchyParams};
 use crate::engine::spatial::Bvh;
-
-use super::synthesis::vertex_neighbours;
 
 /// One synthesis mesh with its hierarchy and per-level data.
 pub struct MeshLevels {

@@ -27,7 +27,8 @@
 use rayon::prelude::*;
 
 use crate::engine::geometry::fans::FanShape;
-use crate::engine::multires::{Hierarchy, SplitMix64};
+use crate::engine::multires::Hierarchy;
+use crate::engine::rng::{mix, SplitMix64};
 
 /// Target vertices per propagation block (fixed: the result must not depend on threads).
 pub const BLOCK: usize = 2048;
@@ -179,15 +180,6 @@ pub struct EStep<'a> {
     pub fixed: Option<&'a [bool]>,
     /// Seed of this level and iteration.
     pub seed: u64,
-}
-
-/// Mixes a seed with indices (SplitMix64 finalizer).
-pub fn mix(seed: u64, a: u64, b: u64) -> u64 {
-    let mut z =
-        seed ^ a.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ b.wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
 }
 
 fn ring<'a>(adj: (&'a [u32], &'a [u32]), v: usize) -> &'a [u32] {

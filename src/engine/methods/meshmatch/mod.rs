@@ -5,17 +5,19 @@
 //! source with similar shape features, instead of being mapped one to one: stretched regions get
 //! more texture, repeated parts get repeated texture.
 //!
-//! - [`synthesis`]: both meshes resampled to the requested density; source colours on vertices.
+//! - [`sampling`]: the synthesis meshes, both meshes resampled to the requested density; source
+//!   colours on vertices.
 //! - [`levels`]: hierarchies (§4) with frames, 1-rings, BVHs; fields moved between levels.
 //! - [`features`]: shape features (§4.1): HKS + up, geodesic affinities to correspondences.
 //! - [`matcher`]: patch dissimilarity (eq. 2), propagation and random search (§4.2 E-step).
 //! - [`vote`]: Gaussian voting (§4.2 M-step, Figure 5) and nearest-neighbour reconstruction.
 //! - [`fidelity`]: coherence, source self-match and completeness of a result.
 //! - [`upsample`]: the field carried to the finer level (§4.2, Figure 6).
-//! - [`synthesize`]: the coarse-to-fine EM on two synthesis meshes.
+//! - [`em`]: [`em::synthesize`], the coarse-to-fine EM on two synthesis meshes.
 //! - [`example`]: the by-example mask (§5.3).
 //! - [`run`]: glTF in, glTF out (bake through [`super::color_output`]), the NNF artifact.
 
+pub mod em;
 pub mod example;
 pub mod features;
 pub mod fidelity;
@@ -23,8 +25,7 @@ pub mod levels;
 pub mod matcher;
 pub mod nnf_file;
 pub mod run;
-pub mod synthesis;
-pub mod synthesize;
+pub mod sampling;
 pub mod upsample;
 pub mod vote;
 

@@ -19,10 +19,10 @@ use crate::engine::methods::color_output::{write_color_field, ColorField, ColorO
 use crate::engine::methods::correspondence::resolve_on_surfaces;
 use crate::engine::spatial::Bvh;
 
+use super::em::{synthesize, MatchInput, MatchReport, PointPair};
 use super::example::painted_vertices;
 use super::nnf_file::NnfFile;
-use super::synthesis::{barycentric_in, input_color, synthesis_colors, synthesis_mesh};
-use super::synthesize::{synthesize, MatchInput, MatchReport, PointPair};
+use super::sampling::{barycentric_in, input_color, synthesis_colors, synthesis_mesh};
 use super::{MeshMatchError, MeshMatchParams, ScaleMode};
 use crate::engine::texture::sample::MaterialSampler;
 

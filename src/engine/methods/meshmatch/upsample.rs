@@ -13,14 +13,11 @@
 use rayon::prelude::*;
 
 use crate::engine::geometry::expmap::LocalFrames;
+use crate::engine::math::dot;
 use crate::engine::multires::Hierarchy;
 use crate::engine::spatial::Bvh;
 
 use super::matcher::Nnf;
-
-fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
 
 /// Angle of `v` (projected) in the frame `(t, b)`.
 fn angle_in(v: [f32; 3], t: [f32; 3], b: [f32; 3]) -> f32 {

@@ -16,6 +16,7 @@
 use rayon::prelude::*;
 
 use crate::engine::geometry::expmap::ExpMap;
+use crate::engine::mesh::csr::group_by_key;
 
 use super::matcher::Nnf;
 
@@ -35,36 +36,25 @@ impl VoteStencil {
         let n = maps.offsets.len() - 1;
         let r2 = radius * radius;
         let inside = |xy: &[f32; 2]| xy[0] * xy[0] + xy[1] * xy[1] <= r2;
-        let mut counts = vec![0u32; n + 1];
-        for (q, xy) in maps.vertex.iter().zip(&maps.coords) {
-            if inside(xy) {
-                counts[*q as usize + 1] += 1;
-            }
-        }
-        for i in 0..n {
-            counts[i + 1] += counts[i];
-        }
-        let mut fill = counts.clone();
-        let total = counts[n] as usize;
-        let mut voter = vec![0u32; total];
-        let mut polar = vec![[0.0f32; 2]; total];
-        for p in 0..n {
+        let entries = (0..n).flat_map(|p| {
             let (verts, coords) = maps.chart(p);
-            for (&q, xy) in verts.iter().zip(coords) {
-                if !inside(xy) {
-                    continue;
-                }
-                let slot = fill[q as usize] as usize;
-                fill[q as usize] += 1;
-                voter[slot] = p as u32;
-                let (r, t) = ExpMap::polar(*xy);
-                polar[slot] = [r, t];
-            }
-        }
+            verts
+                .iter()
+                .zip(coords)
+                .filter(|(_, xy)| inside(xy))
+                .map(move |(&q, xy)| (q, (p as u32, *xy)))
+        });
+        let (offsets, entries) = group_by_key(n, entries);
         Self {
-            offsets: counts,
-            voter,
-            polar,
+            offsets,
+            voter: entries.iter().map(|e| e.0).collect(),
+            polar: entries
+                .iter()
+                .map(|e| {
+                    let (r, t) = ExpMap::polar(e.1);
+                    [r, t]
+                })
+                .collect(),
         }
     }
 

@@ -1,7 +1,7 @@
-//! Synthesis meshes of MeshMatch (Chen et al. 2012, §4: the texture is "stored on vertices"):
-//! the welded input surface resampled by longest-edge bisection to a requested vertex count, so
-//! the output resolution does not depend on how the asset was tessellated (DESIGN.md, "dense
-//! resampling"). Resampling never moves the geometry; every synthesis vertex knows its
+//! Sampling: the synthesis meshes of MeshMatch (Chen et al. 2012, §4: the texture is "stored on
+//! vertices"): the welded input surface resampled by longest-edge bisection to a requested vertex
+//! count, so the output resolution does not depend on how the asset was tessellated (DESIGN.md,
+//! "dense resampling"). Resampling never moves the geometry; every synthesis vertex knows its
 //! (face, barycentric) point on the input surface.
 //!
 //! The source's color per synthesis vertex is its base color (factor × texture × COLOR_0, linear)
@@ -15,8 +15,9 @@ use rayon::prelude::*;
 
 use crate::engine::asset::Asset;
 use crate::engine::control::Control;
+use crate::engine::math::{dot, sub};
 use crate::engine::mesh::{topology, Surface};
-use crate::engine::multires::{resample, FacePoint, ResampleError, ResampleParams};
+use crate::engine::multires::{resample, ResampleError, ResampleParams};
 use crate::engine::texture::sample::MaterialSampler;
 
 /// A synthesis mesh: resampled surface plus the link of each vertex to the input surface.
@@ -61,8 +62,6 @@ pub fn synthesis_mesh(
 /// Barycentric coordinates of `p` in the triangle `t` (least squares in the triangle's plane;
 /// clamped to the triangle and renormalized).
 pub fn barycentric_in(t: [[f32; 3]; 3], p: [f32; 3]) -> [f32; 3] {
-    let sub = |a: [f32; 3], b: [f32; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    let dot = |a: [f32; 3], b: [f32; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
     let (e0, e1, d) = (sub(t[1], t[0]), sub(t[2], t[0]), sub(p, t[0]));
     let (a, b, c) = (dot(e0, e0), dot(e0, e1), dot(e1, e1));
     let (r0, r1) = (dot(d, e0), dot(d, e1));
@@ -142,37 +141,4 @@ pub fn synthesis_colors(asset: &Asset, input: &Surface, mesh: &SynthesisMesh) ->
             sum.map(|x| x / weight)
         })
         .collect()
-}
-
-/// Vertex neighbours (1-ring) of a surface, CSR: `(offsets, neighbours)`, each list ascending.
-pub fn vertex_neighbours(surface: &Surface) -> (Vec<u32>, Vec<u32>) {
-    let nv = surface.vertex_count();
-    let mut lists: Vec<Vec<u32>> = vec![Vec::new(); nv];
-    for f in &surface.faces {
-        for i in 0..3 {
-            let (a, b) = (f[i], f[(i + 1) % 3]);
-            if a != b {
-                lists[a as usize].push(b);
-                lists[b as usize].push(a);
-            }
-        }
-    }
-    let mut offsets = Vec::with_capacity(nv + 1);
-    let mut out = Vec::new();
-    offsets.push(0u32);
-    for mut l in lists {
-        l.sort_unstable();
-        l.dedup();
-        out.extend_from_slice(&l);
-        offsets.push(out.len() as u32);
-    }
-    (offsets, out)
-}
-
-/// The point of `surface` closest to `p` as (face, barycentric), through a prepared BVH.
-pub fn locate(bvh: &crate::engine::spatial::Bvh, p: [f32; 3]) -> Option<FacePoint> {
-    bvh.closest_point(p, f32::INFINITY).map(|h| FacePoint {
-        face: h.face,
-        bary: h.bary,
-    })
 }

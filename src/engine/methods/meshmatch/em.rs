@@ -1,10 +1,11 @@
-//! The MeshMatch optimization on two synthesis meshes (Chen et al. 2012, §4, Figure 2): build both
-//! hierarchies, compute the shape features (§4.1: HKS + up, or geodesic affinities to the
-//! correspondences, or both), then coarse to fine: initialize the nearest-neighbour field at
-//! random on the coarsest level or upsample it from the coarser one (Figure 6), vote the target
-//! colours, and iterate EM — E-step propagation and random search ([`super::matcher`]), M-step
-//! voting ([`super::vote`]) — until the field stabilizes or `iterations` passes ran. At the finest
-//! level the colours are finally copied from the matches (nearest-neighbour reconstruction) unless
+//! [`synthesize`]: the MeshMatch optimization, a coarse-to-fine EM on two synthesis meshes (Chen
+//! et al. 2012, §4, Figure 2): build both hierarchies ([`build_levels`]), compute the shape
+//! features (§4.1: HKS + up, or geodesic affinities to the correspondences, or both;
+//! [`shape_features`]), normalize them and the colours ([`Normalization`]), then coarse to fine
+//! ([`CoarseToFine`]): initialize the nearest-neighbour field at random on the coarsest level or
+//! upsample it from the coarser one (Figure 6), vote the target colours, and iterate EM — E-step propagation and random search ([`super::matcher`]), M-step voting
+//! ([`super::vote`]) — until the field stabilizes or `iterations` passes ran. At the finest level
+//! the colours are finally copied from the matches (nearest-neighbour reconstruction) unless
 //! disabled.
 //!
 //! Colours are matched in units of their standard deviation over the source; each shape dimension
@@ -22,15 +23,15 @@ use serde::Serialize;
 
 use crate::engine::control::Control;
 use crate::engine::geometry::expmap::RadiusUnit;
-use crate::engine::geometry::fans::{FanParams, FanSampler, FieldRef};
+use crate::engine::geometry::fans::{FanParams, FanSampler, Fans, FieldRef};
 use crate::engine::geometry::heat::Source;
 use crate::engine::mesh::Surface;
-use crate::engine::multires::SplitMix64;
+use crate::engine::rng::{mix, SplitMix64};
 
 use super::features::{automatic_features, geodesic_affinities, AffinityPair, AffinityReport};
 use super::fidelity::{measure, Fidelity, FidelityInput};
 use super::levels::{erode, MeshLevels};
-use super::matcher::{bfs_order, components, mix, EStep, Nnf, PatchSpace};
+use super::matcher::{bfs_order, components, EStep, Nnf, PatchSpace};
 use super::upsample::{upsample, Side};
 use super::vote::{nearest_neighbour_colors, vote, SourcePatches, VoteStencil};
 use super::{MeshMatchError, MeshMatchParams, ShapeFeatures};
@@ -285,21 +286,9 @@ pub fn synthesize(
             ),
         });
     }
-    let by_example = input.painted.is_some();
     let span = control.span(0.0, 0.08);
     control.stage("meshmatch: hierarchy", 0)?;
-    let up = params.hks.up;
-    let src_levels = MeshLevels::build(input.source, params.min_vertices, up, control)?;
-    let tgt_owned = if by_example {
-        None
-    } else {
-        Some(MeshLevels::build(
-            input.target,
-            params.min_vertices,
-            up,
-            control,
-        )?)
-    };
+    let (src_levels, tgt_owned) = build_levels(input, params, control)?;
     let tgt_levels = tgt_owned.as_ref().unwrap_or(&src_levels);
     let hierarchy_ms = ms(start);
     drop(span);
@@ -311,72 +300,319 @@ pub fn synthesize(
     let features_ms = ms(t_features);
     drop(span);
 
-    // Colour normalization (std over the source, all channels pooled).
-    let flat: Vec<f32> = input.source_colors.iter().flatten().copied().collect();
-    let color_std = {
-        let s = std_per_dim(&flat, 3);
-        ((s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) / 3.0)
-            .sqrt()
-            .max(1e-3)
+    let normalization = Normalization::new(input, &src_levels, &shapes);
+    let masks = ExampleMasks::new(input, &src_levels, tgt_levels, params)?;
+    let run = CoarseToFine {
+        params,
+        seed,
+        control,
+        src: &src_levels,
+        tgt: tgt_levels,
+        shapes: &shapes,
+        normalization: &normalization,
+        masks: &masks,
+        levels: src_levels.len().min(tgt_levels.len()),
     };
-    let normalized: Vec<f32> = flat.iter().map(|x| x / color_std).collect();
-    let src_colors = src_levels.spread(0, 3, normalized);
-    // Shape normalization per dimension over the source.
-    let shape_std: Vec<f32> = if shapes.dim > 0 {
-        std_per_dim(&shapes.source[0], shapes.dim)
-            .into_iter()
-            .map(|s| if s > 1e-12 { s } else { 1.0 })
-            .collect()
-    } else {
-        Vec::new()
-    };
-    let fan_dims = (params.rings * params.spokes * 3) as f32;
+    let AllLevels {
+        colors,
+        nnf,
+        reports,
+        fidelity,
+    } = run.all_levels()?;
+    control.set_prefix("");
+    let colors = colors
+        .into_iter()
+        .map(|c| c.map(|x| (x * normalization.color_std).max(0.0)))
+        .collect();
+    Ok(MatchOutput {
+        colors,
+        nnf,
+        report: MatchReport {
+            levels: reports,
+            shape_dims: shapes.dim,
+            features: shapes.kind,
+            affinity: shapes.affinity,
+            fidelity,
+            hierarchy_ms,
+            features_ms,
+            total_ms: ms(start),
+        },
+    })
+}
 
-    let levels = src_levels.len().min(tgt_levels.len());
-    let top = levels - 1;
-    let painted_levels = input.painted.map(|p| tgt_levels.restrict_mask_all(p));
-    let allowed_levels: Option<Vec<Vec<bool>>> = painted_levels.as_ref().map(|pl| {
-        pl.iter()
-            .enumerate()
-            .map(|(l, m)| {
-                let e = erode(m, src_levels.rings(l), params.rings);
-                if e.iter().any(|&x| x) {
-                    e
-                } else {
-                    m.clone()
-                }
-            })
-            .collect()
-    });
-    if let Some(a) = &allowed_levels {
-        if !a[0].iter().any(|&x| x) {
-            return Err(MeshMatchError::Param {
-                name: "example",
-                message: "the example mask selects no vertex".into(),
-            });
+/// The hierarchies of the source and, unless in by-example mode (where the target is the
+/// source), of the target.
+fn build_levels(
+    input: &MatchInput<'_>,
+    params: &MeshMatchParams,
+    control: &Control,
+) -> Result<(MeshLevels, Option<MeshLevels>), MeshMatchError> {
+    let up = params.hks.up;
+    let src_levels = MeshLevels::build(input.source, params.min_vertices, up, control)?;
+    let tgt_owned = if input.painted.is_some() {
+        None
+    } else {
+        Some(MeshLevels::build(
+            input.target,
+            params.min_vertices,
+            up,
+            control,
+        )?)
+    };
+    Ok((src_levels, tgt_owned))
+}
+
+/// Colours and shape features in units of their standard deviation over the source.
+struct Normalization {
+    /// The colour scale: std over the source, all channels pooled.
+    color_std: f32,
+    /// Normalized source colours per level, `[vertex][rgb]` flattened.
+    src_colors: Vec<Vec<f32>>,
+    /// Std of each shape dimension over the source (1 where it vanishes); empty without shape.
+    shape_std: Vec<f32>,
+}
+
+impl Normalization {
+    fn new(input: &MatchInput<'_>, src_levels: &MeshLevels, shapes: &Shapes) -> Self {
+        let flat: Vec<f32> = input.source_colors.iter().flatten().copied().collect();
+        let color_std = {
+            let s = std_per_dim(&flat, 3);
+            ((s[0] * s[0] + s[1] * s[1] + s[2] * s[2]) / 3.0)
+                .sqrt()
+                .max(1e-3)
+        };
+        let normalized: Vec<f32> = flat.iter().map(|x| x / color_std).collect();
+        let src_colors = src_levels.spread(0, 3, normalized);
+        let shape_std: Vec<f32> = if shapes.dim > 0 {
+            std_per_dim(&shapes.source[0], shapes.dim)
+                .into_iter()
+                .map(|s| if s > 1e-12 { s } else { 1.0 })
+                .collect()
+        } else {
+            Vec::new()
+        };
+        Normalization {
+            color_std,
+            src_colors,
+            shape_std,
         }
     }
+}
 
-    // Progress: the levels share the rest of the span in proportion to their vertex counts
-    // (charts, fans, E-steps and votes are all linear in them).
-    let level_cost: Vec<f64> = (0..levels)
-        .map(|l| {
-            (src_levels.surface(l).vertex_count() + tgt_levels.surface(l).vertex_count()) as f64
+/// By-example mode (§5.3): per level, the painted target vertices (kept as they are) and the
+/// source vertices matches may use (painted, eroded by the fan's rings where anything is left).
+struct ExampleMasks {
+    painted: Option<Vec<Vec<bool>>>,
+    allowed: Option<Vec<Vec<bool>>>,
+}
+
+impl ExampleMasks {
+    fn new(
+        input: &MatchInput<'_>,
+        src_levels: &MeshLevels,
+        tgt_levels: &MeshLevels,
+        params: &MeshMatchParams,
+    ) -> Result<Self, MeshMatchError> {
+        let painted = input.painted.map(|p| tgt_levels.restrict_mask_all(p));
+        let allowed: Option<Vec<Vec<bool>>> = painted.as_ref().map(|pl| {
+            pl.iter()
+                .enumerate()
+                .map(|(l, m)| {
+                    let e = erode(m, src_levels.rings(l), params.rings);
+                    if e.iter().any(|&x| x) {
+                        e
+                    } else {
+                        m.clone()
+                    }
+                })
+                .collect()
+        });
+        if let Some(a) = &allowed {
+            if !a[0].iter().any(|&x| x) {
+                return Err(MeshMatchError::Param {
+                    name: "example",
+                    message: "the example mask selects no vertex".into(),
+                });
+            }
+        }
+        Ok(ExampleMasks { painted, allowed })
+    }
+}
+
+/// What every level of the coarse-to-fine loop reads.
+struct CoarseToFine<'a> {
+    params: &'a MeshMatchParams,
+    seed: u64,
+    control: &'a Control,
+    src: &'a MeshLevels,
+    tgt: &'a MeshLevels,
+    shapes: &'a Shapes,
+    normalization: &'a Normalization,
+    masks: &'a ExampleMasks,
+    /// Levels used (the shorter hierarchy's).
+    levels: usize,
+}
+
+/// The data of one level that stays fixed through its EM iterations.
+struct Level<'a> {
+    index: usize,
+    /// Source and target vertices.
+    ns: usize,
+    nt: usize,
+    /// Fan radius, world units.
+    radius: f32,
+    /// Shape weight of this level.
+    weight: f32,
+    src_fans: Fans,
+    tgt_sampler: FanSampler,
+    stencil: VoteStencil,
+    /// Normalized source colour per vertex.
+    centers: Vec<[f32; 3]>,
+    /// Scaled shape features.
+    src_shape: Vec<f32>,
+    tgt_shape: Vec<f32>,
+    /// By-example masks of this level.
+    allowed: Option<&'a [bool]>,
+    fixed: Option<&'a [bool]>,
+}
+
+/// What the coarse-to-fine loop ends with.
+struct AllLevels {
+    /// Normalized colours of the finest target vertices.
+    colors: Vec<[f32; 3]>,
+    /// The finest field.
+    nnf: Nnf,
+    /// One report per level, coarsest first.
+    reports: Vec<LevelReport>,
+    /// Fidelity figures (with `measure_fidelity`).
+    fidelity: Option<Fidelity>,
+}
+
+/// What one level hands on: the field, the colours, and its figures.
+struct LevelOutput {
+    nnf: Nnf,
+    colors: Vec<[f32; 3]>,
+    fidelity: Option<Fidelity>,
+    report: LevelReport,
+}
+
+impl<'a> CoarseToFine<'a> {
+    /// All levels, coarsest first.
+    fn all_levels(&self) -> Result<AllLevels, MeshMatchError> {
+        // Progress: the levels share the rest of the span in proportion to their vertex counts
+        // (charts, fans, E-steps and votes are all linear in them).
+        let level_cost: Vec<f64> = (0..self.levels)
+            .map(|l| {
+                (self.src.surface(l).vertex_count() + self.tgt.surface(l).vertex_count()) as f64
+            })
+            .collect();
+        let total_cost: f64 = level_cost.iter().sum::<f64>().max(1.0);
+        let mut cost_done = 0.0;
+        let mut reports = Vec::new();
+        let mut fidelity = None;
+        let mut nnf = Nnf::default();
+        let mut colors: Vec<[f32; 3]> = Vec::new();
+        for level in (0..self.levels).rev() {
+            let t_level = Instant::now();
+            let level_start = 0.15 + 0.85 * cost_done / total_cost;
+            cost_done += level_cost[level];
+            let _level_span = self
+                .control
+                .span(level_start, 0.15 + 0.85 * cost_done / total_cost);
+            let out = self.level(level, nnf, t_level)?;
+            nnf = out.nnf;
+            colors = out.colors;
+            if out.fidelity.is_some() {
+                fidelity = out.fidelity;
+            }
+            reports.push(out.report);
+        }
+        Ok(AllLevels {
+            colors,
+            nnf,
+            reports,
+            fidelity,
         })
-        .collect();
-    let total_cost: f64 = level_cost.iter().sum::<f64>().max(1.0);
-    let mut cost_done = 0.0;
-    let mut reports = Vec::new();
-    let mut fidelity = None;
-    let mut nnf = Nnf::default();
-    let mut colors: Vec<[f32; 3]> = Vec::new();
-    for level in (0..levels).rev() {
-        let t_level = Instant::now();
-        let level_start = 0.15 + 0.85 * cost_done / total_cost;
-        cost_done += level_cost[level];
-        let _level_span = control.span(level_start, 0.15 + 0.85 * cost_done / total_cost);
-        control.set_prefix(&format!("meshmatch level {}/{levels}", levels - level));
-        control.stage("prepare", 0)?;
+    }
+
+    /// One level: prepare, initialize or upsample the field from `coarser`, vote, iterate EM,
+    /// and on the finest level reconstruct and measure.
+    fn level(
+        &self,
+        level: usize,
+        coarser: Nnf,
+        t_level: Instant,
+    ) -> Result<LevelOutput, MeshMatchError> {
+        let (params, levels) = (self.params, self.levels);
+        self.control
+            .set_prefix(&format!("meshmatch level {}/{levels}", levels - level));
+        self.control.stage("prepare", 0)?;
+        let lv = self.prepare(level)?;
+        let mut nnf = self.initial_field(&lv, &coarser)?;
+        if let Some(f) = lv.fixed {
+            for (t, &is_fixed) in f.iter().enumerate() {
+                if is_fixed {
+                    nnf.source[t] = t as u32;
+                    nnf.rotation[t] = 0;
+                }
+            }
+        }
+        let patches = SourcePatches {
+            rings: params.rings,
+            spokes: params.spokes,
+            radius: lv.radius,
+            fans: &lv.src_fans.data,
+            centers: &lv.centers,
+        };
+        let keep = lv.fixed.map(|f| (f, lv.centers.as_slice()));
+        let sigma = params.vote_sigma * lv.radius;
+        let mut colors = vote(&lv.stencil, &nnf, &patches, sigma, keep);
+        let (iterations, converged) = self.iterate(&lv, &patches, sigma, &mut nnf, &mut colors)?;
+        if level == 0 && params.nearest_neighbor_final {
+            colors = nearest_neighbour_colors(&nnf, &lv.centers, keep);
+        }
+        let mut fidelity = None;
+        if level == 0 && params.measure_fidelity {
+            fidelity = Some(measure(
+                &FidelityInput {
+                    source: self.src,
+                    target: self.tgt,
+                    source_fans: &lv.src_fans.data,
+                    target_sampler: &lv.tgt_sampler,
+                    colors: &colors,
+                    nnf: &nnf,
+                    allowed: lv.allowed,
+                    fixed: lv.fixed,
+                    rings: params.rings,
+                    seed: self.seed,
+                },
+                self.control,
+            )?);
+        }
+        let report = LevelReport {
+            level,
+            target_vertices: lv.nt,
+            source_vertices: lv.ns,
+            fan_radius: lv.radius,
+            shape_weight: lv.weight,
+            iterations,
+            converged,
+            ms: ms(t_level),
+        };
+        Ok(LevelOutput {
+            nnf,
+            colors,
+            fidelity,
+            report,
+        })
+    }
+
+    /// Fans of the source colours, the target's fan sampler and vote stencil, and the shape
+    /// features scaled for `level`.
+    fn prepare(&self, level: usize) -> Result<Level<'a>, MeshMatchError> {
+        let (params, control) = (self.params, self.control);
+        let (src_levels, tgt_levels, shapes) = (self.src, self.tgt, self.shapes);
+        let src_colors = &self.normalization.src_colors;
         let src_surface = src_levels.surface(level);
         let tgt_surface = tgt_levels.surface(level);
         let (ns, nt) = (src_surface.vertex_count(), tgt_surface.vertex_count());
@@ -404,8 +640,11 @@ pub fn synthesize(
             .chunks_exact(3)
             .map(|c| [c[0], c[1], c[2]])
             .collect();
-        let weight = shape_weight_at(params, level, top);
-        let scale: Vec<f32> = shape_std
+        let weight = shape_weight_at(params, level, self.levels - 1);
+        let fan_dims = (params.rings * params.spokes * 3) as f32;
+        let scale: Vec<f32> = self
+            .normalization
+            .shape_std
             .iter()
             .map(|s| (weight * fan_dims / shapes.dim.max(1) as f32).sqrt() / s)
             .collect();
@@ -421,13 +660,30 @@ pub fn synthesize(
         } else {
             (Vec::new(), Vec::new())
         };
-        let allowed = allowed_levels.as_ref().map(|a| a[level].as_slice());
-        let fixed = painted_levels.as_ref().map(|p| p[level].as_slice());
+        Ok(Level {
+            index: level,
+            ns,
+            nt,
+            radius,
+            weight,
+            src_fans,
+            tgt_sampler,
+            stencil,
+            centers,
+            src_shape,
+            tgt_shape,
+            allowed: self.masks.allowed.as_ref().map(|a| a[level].as_slice()),
+            fixed: self.masks.painted.as_ref().map(|p| p[level].as_slice()),
+        })
+    }
 
-        // Initialize or upsample the field.
-        nnf = if level == top {
+    /// The field to start `lv` from: random on the coarsest level, else upsampled from the
+    /// `coarser` level's field.
+    fn initial_field(&self, lv: &Level<'_>, coarser: &Nnf) -> Result<Nnf, MeshMatchError> {
+        let (level, ns, nt) = (lv.index, lv.ns, lv.nt);
+        if level == self.levels - 1 {
             let pool: Vec<u32> = (0..ns as u32)
-                .filter(|&s| allowed.is_none_or(|a| a[s as usize]))
+                .filter(|&s| lv.allowed.is_none_or(|a| a[s as usize]))
                 .collect();
             if pool.is_empty() {
                 return Err(MeshMatchError::Param {
@@ -437,52 +693,50 @@ pub fn synthesize(
                     ),
                 });
             }
-            let mut rng = SplitMix64::new(mix(seed, 0xC0A5, level as u64));
-            Nnf {
+            let mut rng = SplitMix64::new(mix(self.seed, 0xC0A5, level as u64));
+            Ok(Nnf {
                 source: (0..nt)
                     .map(|_| pool[rng.below(pool.len() as u64) as usize])
                     .collect(),
                 rotation: (0..nt)
-                    .map(|_| rng.below(params.spokes as u64) as u16)
+                    .map(|_| rng.below(self.params.spokes as u64) as u16)
                     .collect(),
                 distance: vec![f32::INFINITY; nt],
-            }
+            })
         } else {
-            upsample(
-                &nnf,
+            Ok(upsample(
+                coarser,
                 level,
                 &Side {
-                    hierarchy: &tgt_levels.hierarchy,
-                    frames: &tgt_levels.frames,
+                    hierarchy: &self.tgt.hierarchy,
+                    frames: &self.tgt.frames,
                 },
                 &Side {
-                    hierarchy: &src_levels.hierarchy,
-                    frames: &src_levels.frames,
+                    hierarchy: &self.src.hierarchy,
+                    frames: &self.src.frames,
                 },
-                &src_levels.bvh[level],
-                params.spokes,
-                allowed,
-            )
-        };
-        if let Some(f) = fixed {
-            for (t, &is_fixed) in f.iter().enumerate() {
-                if is_fixed {
-                    nnf.source[t] = t as u32;
-                    nnf.rotation[t] = 0;
-                }
-            }
+                &self.src.bvh[level],
+                self.params.spokes,
+                lv.allowed,
+            ))
         }
-        let patches = SourcePatches {
-            rings: params.rings,
-            spokes: params.spokes,
-            radius,
-            fans: &src_fans.data,
-            centers: &centers,
-        };
-        let keep = fixed.map(|f| (f, centers.as_slice()));
-        let sigma = params.vote_sigma * radius;
-        colors = vote(&stencil, &nnf, &patches, sigma, keep);
+    }
 
+    /// The EM iterations of one level (E-step: refresh, propagation, random search; M-step:
+    /// vote) until the field stabilizes or `iterations` passes ran. Returns the iteration
+    /// reports and whether it converged.
+    fn iterate(
+        &self,
+        lv: &Level<'_>,
+        patches: &SourcePatches<'_>,
+        sigma: f32,
+        nnf: &mut Nnf,
+        colors: &mut Vec<[f32; 3]>,
+    ) -> Result<(Vec<IterationReport>, bool), MeshMatchError> {
+        let (params, control, seed) = (self.params, self.control, self.seed);
+        let (level, nt, levels) = (lv.index, lv.nt, self.levels);
+        let (src_levels, tgt_levels) = (self.src, self.tgt);
+        let keep = lv.fixed.map(|f| (f, lv.centers.as_slice()));
         let (labels, firsts) = components(tgt_levels.rings(level), nt);
         let mut rng = SplitMix64::new(mix(seed, 0x0bf5, level as u64));
         // A random start inside each component.
@@ -505,7 +759,7 @@ pub fn synthesize(
             control.check()?;
             let t_fans = Instant::now();
             let flat: Vec<f32> = colors.iter().flatten().copied().collect();
-            let tgt_fans = tgt_sampler.sample(
+            let tgt_fans = lv.tgt_sampler.sample(
                 FieldRef {
                     dim: 3,
                     values: &flat,
@@ -516,13 +770,13 @@ pub fn synthesize(
             let t_e = Instant::now();
             let step = EStep {
                 space: PatchSpace {
-                    fan: src_fans.shape(),
+                    fan: lv.src_fans.shape(),
                     target_fans: &tgt_fans.data,
-                    source_fans: &src_fans.data,
-                    target_shape: &tgt_shape,
-                    source_shape: &src_shape,
-                    shape_dim: shapes.dim,
-                    source_allowed: allowed,
+                    source_fans: &lv.src_fans.data,
+                    target_shape: &lv.tgt_shape,
+                    source_shape: &lv.src_shape,
+                    shape_dim: self.shapes.dim,
+                    source_allowed: lv.allowed,
                     exclude: None,
                 },
                 target_adjacency: tgt_levels.rings(level),
@@ -530,20 +784,20 @@ pub fn synthesize(
                 source_hierarchy: &src_levels.hierarchy,
                 level,
                 randomized_rotations: params.randomized_rotations,
-                fixed,
+                fixed: lv.fixed,
                 seed: mix(seed, level as u64, it as u64),
             };
-            step.refresh(&mut nnf);
+            step.refresh(nnf);
             control.check()?;
             let order = bfs_order(tgt_levels.rings(level), &labels, &mut starts);
-            let propagated = step.propagate(&mut nnf, &order);
+            let propagated = step.propagate(nnf, &order);
             control.check()?;
-            let searched = step.random_search(&mut nnf);
+            let searched = step.random_search(nnf);
             let energy = nnf.energy();
             let e_step_ms = ms(t_e);
             control.check()?;
             let t_v = Instant::now();
-            colors = vote(&stencil, &nnf, &patches, sigma, keep);
+            *colors = vote(&lv.stencil, nnf, patches, sigma, keep);
             let vote_ms = ms(t_v);
             iterations.push(IterationReport {
                 energy,
@@ -559,56 +813,8 @@ pub fn synthesize(
                 break;
             }
         }
-        if level == 0 && params.nearest_neighbor_final {
-            colors = nearest_neighbour_colors(&nnf, &centers, keep);
-        }
-        if level == 0 && params.measure_fidelity {
-            fidelity = Some(measure(
-                &FidelityInput {
-                    source: &src_levels,
-                    target: tgt_levels,
-                    source_fans: &src_fans.data,
-                    target_sampler: &tgt_sampler,
-                    colors: &colors,
-                    nnf: &nnf,
-                    allowed,
-                    fixed,
-                    rings: params.rings,
-                    seed,
-                },
-                control,
-            )?);
-        }
-        reports.push(LevelReport {
-            level,
-            target_vertices: nt,
-            source_vertices: ns,
-            fan_radius: radius,
-            shape_weight: weight,
-            iterations,
-            converged,
-            ms: ms(t_level),
-        });
+        Ok((iterations, converged))
     }
-    control.set_prefix("");
-    let colors = colors
-        .into_iter()
-        .map(|c| c.map(|x| (x * color_std).max(0.0)))
-        .collect();
-    Ok(MatchOutput {
-        colors,
-        nnf,
-        report: MatchReport {
-            levels: reports,
-            shape_dims: shapes.dim,
-            features: shapes.kind,
-            affinity: shapes.affinity,
-            fidelity,
-            hierarchy_ms,
-            features_ms,
-            total_ms: ms(start),
-        },
-    })
 }
 
 /// Shape weight of `level`: `shape_weight` on the coarsest level, `finest_shape_weight` on level 0,

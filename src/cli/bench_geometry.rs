@@ -1,40 +1,42 @@
-//! Timings of the geometry core on a 64K-vertex mesh (a Class I geodesic sphere of frequency 80,
+//! `retex bench --method geometry`: timings of the geometry core on a 64K-vertex mesh (a Class I geodesic sphere of frequency 80,
 //! 64 002 vertices, 128 000 faces, vertices jittered slightly and pushed back onto the sphere so
 //! triangles are irregular): Laplacian and mass, Cholesky symbolic and numeric phases, the heat
 //! method (preparation, one query, queries in parallel), curvature and bounded walks.
 //!
-//! [`bench_geometry`] returns one [`BenchRow`] per stage with the median of several runs, and
-//! the process's peak resident memory (`VmHWM` of `/proc/self/status`, Linux only) afterwards.
-//! Timings belong in benchmarks, not tests: the ignored test `bench_geometry_64k` in
-//! `tests/geometry_core.rs` prints these rows.
+//! Prints one row per stage with the median and the fastest of several runs, then the process's
+//! peak resident memory (`VmHWM` of `/proc/self/status`, Linux only). Needs no assets.
 
 use std::time::Instant;
 
-use super::curvature::{principal_curvatures, CurvatureParams};
-use super::heat::{HeatGeodesics, HeatParams, Source};
-use super::laplacian::{cotan_laplacian, GeometryError, LaplacianParams};
-use super::walk::{WalkGraph, WalkMetric, WalkParams, Walker};
-use crate::engine::control::Control;
-use crate::engine::linalg::SymbolicCholesky;
-use crate::engine::mesh::primitives::{icosphere, jitter};
-use crate::engine::mesh::Surface;
+use retex::engine::control::Control;
+use retex::engine::geometry::curvature::{principal_curvatures, CurvatureParams};
+use retex::engine::geometry::heat::{HeatGeodesics, HeatParams, Source};
+use retex::engine::geometry::laplacian::{cotan_laplacian, GeometryError, LaplacianParams};
+use retex::engine::geometry::walk::{WalkGraph, WalkMetric, WalkParams, Walker};
+use retex::engine::linalg::SymbolicCholesky;
+use retex::engine::mesh::primitives::{icosphere, jitter};
+use retex::engine::mesh::Surface;
+
+use super::bench_meshmatch::peak_rss_mib;
+
+/// The geodesic sphere's frequency: 80 → 64 002 vertices.
+const FREQUENCY: usize = 80;
 
 /// One measured stage.
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct BenchRow {
+struct BenchRow {
     /// Stage name.
-    pub stage: String,
+    stage: String,
     /// Median wall time over `runs`, seconds.
-    pub median_s: f64,
+    median_s: f64,
     /// Fastest run, seconds.
-    pub min_s: f64,
+    min_s: f64,
     /// Number of runs.
-    pub runs: usize,
+    runs: usize,
 }
 
 /// The benchmark mesh: geodesic sphere of `frequency` (`10 f² + 2` vertices), jittered by 10 %
 /// of the edge length and re-projected onto the unit sphere.
-pub fn bench_mesh(frequency: usize) -> Surface {
+fn bench_mesh(frequency: usize) -> Surface {
     let mut s = icosphere(1.0, frequency);
     let edge = 1.1 / frequency as f64;
     jitter(&mut s, 0.1 * edge, [true; 3], 1);
@@ -59,19 +61,8 @@ fn time<T>(
     Ok((t[t.len() / 2], t[0]))
 }
 
-/// Peak resident set size of this process in MiB (`VmHWM`), if the platform reports it.
-pub fn peak_memory_mib() -> Option<f64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kib / 1024.0)
-}
-
 /// Runs every stage `runs` times on [`bench_mesh`]`(frequency)` (80 → 64 002 vertices).
-///
-/// # Errors
-/// Any error of the measured operators.
-pub fn bench_geometry(frequency: usize, runs: usize) -> Result<Vec<BenchRow>, GeometryError> {
+fn bench_geometry(frequency: usize, runs: usize) -> Result<Vec<BenchRow>, GeometryError> {
     let s = bench_mesh(frequency);
     let n = s.vertex_count();
     let mut rows = Vec::new();
@@ -148,4 +139,22 @@ pub fn bench_geometry(frequency: usize, runs: usize) -> Result<Vec<BenchRow>, Ge
         (med / walks, min / walks),
     );
     Ok(rows)
+}
+
+/// Runs the stages `runs` times each on the 64K-vertex sphere and prints the rows.
+pub fn run(runs: usize) -> Result<(), String> {
+    let rows = bench_geometry(FREQUENCY, runs).map_err(|e| e.to_string())?;
+    for r in &rows {
+        println!(
+            "{:<64} median {:>10.3} ms   min {:>10.3} ms   ({} runs)",
+            r.stage,
+            r.median_s * 1e3,
+            r.min_s * 1e3,
+            r.runs
+        );
+    }
+    if let Some(mib) = peak_rss_mib() {
+        println!("peak resident memory (VmHWM): {mib:.0} MiB");
+    }
+    Ok(())
 }
