@@ -183,32 +183,4 @@ pub fn write_field(
     Ok((edits, report))
 }
 
-pub(crate) fn dot(a: [f32; 3], b: [f32; 3]) -> f32 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn sub(a: [f32; 3], b: [f32; 3]) -> [f32; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn cross(u: [f32; 3], v: [f32; 3]) -> [f32; 3] {
-    [
-        u[1] * v[2] - u[2] * v[1],
-        u[2] * v[0] - u[0] * v[2],
-        u[0] * v[1] - u[1] * v[0],
-    ]
-}
-
-fn normal_of(a: [f32; 3], b: [f32; 3], c: [f32; 3]) -> [f32; 3] {
-    let n = cross(sub(b, a), sub(c, a));
-    let l = dot(n, n).sqrt();
-    if l > 0.0 {
-        [n[0] / l, n[1] / l, n[2] / l]
-    } else {
-        [0.0; 3]
-    }
-}
-
-pub(crate) fn to_f32(p: [f64; 3]) -> [f32; 3] {
-    [p[0] as f32, p[1] as f32, p[2] as f32]
-}
+pub(crate) use crate::engine::math::{cross, dot, normal_of, sub, to_f32};
