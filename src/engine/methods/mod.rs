@@ -9,20 +9,24 @@
 //!
 //! Shared building blocks: [`align`] (similarity from correspondences), [`correspondence`]
 //! (resolving constraint places onto surfaces), [`color_output`] (writing a colour field into a
-//! target's UV layout or COLOR_0).
+//! target's UV layout or COLOR_0), [`params`] (params schemas derived from the Params structs and
+//! the range check that reads them) and [`shared_params`] (options several methods
+//! share).
 
 pub mod align;
 pub mod color_output;
 pub mod correspondence;
 pub mod meshmatch;
+pub mod params;
 pub mod project;
+pub mod shared_params;
 
 mod method;
-mod schema;
 
 pub use method::{
     InputSpec, InputUse, Method, MethodError, MethodInput, MethodOutput, PatternImage, ResultFile,
 };
+pub use shared_params::SharedParams;
 
 use crate::engine::asset::constraints::MethodId;
 
