@@ -10,8 +10,8 @@
 //! Shared building blocks: [`align`] (similarity from correspondences), [`correspondence`]
 //! (resolving constraint places onto surfaces), [`color_output`] (writing a colour field into a
 //! target's UV layout or COLOR_0), [`params`] (params schemas derived from the Params structs and
-//! the range check that reads them) and [`shared_params`] (options several methods
-//! share).
+//! the range check that reads them), [`shared_params`] (options several methods share), and
+//! [`constraints_schema`] (the whole constraints schema, `api/constraints.schema.json`).
 
 pub mod align;
 pub mod color_output;
@@ -22,10 +22,12 @@ pub mod project;
 pub mod shared_params;
 
 mod method;
+mod schema;
 
 pub use method::{
     InputSpec, InputUse, Method, MethodError, MethodInput, MethodOutput, PatternImage, ResultFile,
 };
+pub use schema::{constraints_schema, constraints_schema_for, constraints_schema_json};
 pub use shared_params::SharedParams;
 
 use crate::engine::asset::constraints::MethodId;
