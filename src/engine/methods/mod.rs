@@ -9,14 +9,19 @@
 //!
 //! Shared building blocks: [`align`] (similarity from correspondences), [`correspondence`]
 //! (resolving constraint places onto surfaces), [`output`] (writing an N-channel field into an
-//! asset's UV layout or a vertex attribute) and [`color_output`] (its base-colour form).
+//! asset's UV layout or a vertex attribute), [`color_output`] (its base-colour form), [`params`]
+//! (params schemas derived from the Params structs and the range check that reads them),
+//! [`shared_params`] (options several methods share), and [`constraints_schema`] (the whole
+//! constraints schema, `api/constraints.schema.json`).
 
 pub mod align;
 pub mod color_output;
 pub mod correspondence;
 pub mod meshmatch;
 pub mod output;
+pub mod params;
 pub mod project;
+pub mod shared_params;
 
 mod method;
 mod schema;
@@ -24,6 +29,8 @@ mod schema;
 pub use method::{
     InputSpec, InputUse, Method, MethodError, MethodInput, MethodOutput, PatternImage, ResultFile,
 };
+pub use schema::{constraints_schema, constraints_schema_for, constraints_schema_json};
+pub use shared_params::SharedParams;
 
 use crate::engine::asset::constraints::MethodId;
 

@@ -12,6 +12,7 @@
 //! A synthesis vertex is painted when every synthesis triangle around it lies in a painted region
 //! (faces), or when the mask value at the vertex passes the threshold (vertex colour, image).
 
+use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use crate::engine::asset::constraints::ConstraintsError;
@@ -23,7 +24,7 @@ use crate::engine::texture::sample::{sample_image, MaterialSampler};
 use super::sampling::{barycentric_in, SynthesisMesh};
 
 /// A colour channel.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "lowercase")]
 pub enum Channel {
     /// Red.
@@ -48,7 +49,7 @@ impl Channel {
 }
 
 /// Triangles of one primitive.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct FaceSet {
     /// glTF mesh index.
@@ -59,8 +60,9 @@ pub struct FaceSet {
     pub triangles: Vec<usize>,
 }
 
-/// Which part of the mesh is painted (see the module docs).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+/// Which part of the mesh is painted.
+// The thresholds' range is checked with the other params (`MeshMatchParams::validate`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case", deny_unknown_fields)]
 pub enum ExampleMask {
     /// Listed triangles.
@@ -69,7 +71,8 @@ pub enum ExampleMask {
     VertexColor {
         /// The channel.
         channel: Channel,
-        /// Painted where the value is above this. Range [0, 1].
+        /// Painted where the value is above this.
+        #[schemars(range(min = 0, max = 1))]
         threshold: f32,
     },
     /// An image of the asset through the base-colour UVs.
@@ -78,7 +81,8 @@ pub enum ExampleMask {
         index: usize,
         /// The channel.
         channel: Channel,
-        /// Painted where the value is above this. Range [0, 1].
+        /// Painted where the value is above this.
+        #[schemars(range(min = 0, max = 1))]
         threshold: f32,
     },
 }
@@ -90,8 +94,9 @@ fn err(path: &str, message: String) -> ConstraintsError {
 /// The painted flag of every synthesis vertex.
 ///
 /// # Errors
-/// A [`ConstraintsError`] naming the field for an index out of range, a threshold out of range,
-/// an asset without COLOR_0, an undecodable image, or a mask that selects nothing or everything.
+/// A [`ConstraintsError`] naming the field for an index out of range, an asset without COLOR_0,
+/// an undecodable image, or a mask that selects nothing or everything. The thresholds are
+/// range-checked beforehand, with the other params.
 pub fn painted_vertices(
     mask: &ExampleMask,
     asset: &Asset,
@@ -147,7 +152,6 @@ pub fn painted_vertices(
             all.iter().zip(&any).map(|(a, b)| *a && *b).collect()
         }
         ExampleMask::VertexColor { channel, threshold } => {
-            check_threshold(*threshold)?;
             if !asset.primitives.iter().any(|p| p.colors.is_some()) {
                 return Err(err(
                     ".vertex_color",
@@ -174,7 +178,6 @@ pub fn painted_vertices(
             channel,
             threshold,
         } => {
-            check_threshold(*threshold)?;
             let image = asset.images.get(*index).ok_or_else(|| {
                 err(
                     ".image.index",
@@ -223,17 +226,6 @@ pub fn painted_vertices(
         ));
     }
     Ok(painted)
-}
-
-fn check_threshold(t: f32) -> Result<(), ConstraintsError> {
-    if (0.0..=1.0).contains(&t) {
-        Ok(())
-    } else {
-        Err(err(
-            ".threshold",
-            format!("{t} is outside the range [0, 1]"),
-        ))
-    }
 }
 
 /// Evaluates `value(primitive, triangle, bary in the triangle's vertex order)` at every synthesis

@@ -42,7 +42,7 @@
 //! - in these units the solution minimizes `‖[A − I | b]‖_F` subject to the constraints (least
 //!   squares when they cannot all hold), [`AffineRegularization::Identity`]. The paper's literal
 //!   "minimum-norm" `‖[A | b]‖_F` ([`AffineRegularization::MinimumNorm`]) was tested against it
-//!   (tests/meshmatch_features.rs, 6 pairs on an ellipsoid, largest / mean affinity error at
+//!   (tests/engine/meshmatch_features.rs, 6 pairs on an ellipsoid, largest / mean affinity error at
 //!   corresponding vertices). Identical surfaces: the literal map meets the constraints but is not
 //!   the identity, so away from the correspondences the target features differ (0.075 / 0.015),
 //!   where the identity variant gives exactly `[I | 0]` and identical features. ×2 scaled copy:
@@ -62,6 +62,8 @@
 //! Written by hand around the spectrum, signature and heat-geodesic operators of
 //! [`crate::engine::geometry`].
 
+use std::borrow::Cow;
+
 use faer::Mat;
 
 use crate::engine::control::{Cancelled, Control};
@@ -71,6 +73,7 @@ use crate::engine::geometry::signatures::{heat_kernel_signature_at, HksNormaliza
 use crate::engine::geometry::spectrum::{laplace_spectrum, SpectrumParams};
 use crate::engine::linalg::lanczos::symmetric_eigen;
 use crate::engine::mesh::Surface;
+use crate::engine::methods::params::{check_ranges, OutOfRange};
 
 /// Per-vertex shape features: `dim` f32 per vertex, vertex-major (`values[v · dim + j]`).
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -122,11 +125,11 @@ pub enum FeatureError {
     #[error("parameter {name} = {value} is out of range {range}")]
     InvalidParam {
         /// Parameter name.
-        name: &'static str,
+        name: Cow<'static, str>,
         /// The offending value.
         value: f64,
         /// The valid range, as text.
-        range: &'static str,
+        range: Cow<'static, str>,
     },
     /// [`geodesic_affinities`] was given no correspondence.
     #[error("no correspondences given")]
@@ -161,21 +164,37 @@ impl From<GeometryError> for FeatureError {
 }
 
 fn invalid(name: &'static str, value: f64, range: &'static str) -> FeatureError {
-    FeatureError::InvalidParam { name, value, range }
+    FeatureError::InvalidParam {
+        name: name.into(),
+        value,
+        range: range.into(),
+    }
 }
 
-/// Parameters of [`automatic_features`].
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+impl From<OutOfRange> for FeatureError {
+    fn from(e: OutOfRange) -> Self {
+        FeatureError::InvalidParam {
+            name: e.field.into(),
+            value: e.value,
+            range: e.range.into(),
+        }
+    }
+}
+
+/// Parameters of [`automatic_features`] (`params.hks` of `meshmatch`).
+// Ranges are on the fields and checked through the derived schema (`methods::params`).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct AutomaticFeatureParams {
     /// Number of HKS times (log-spaced, see [`unit_area_hks_times`]). Default: 8 (the paper).
-    /// Range: [1, 64].
+    #[schemars(range(min = 1, max = 64))]
     pub hks_times: usize,
-    /// Number of lowest Laplace–Beltrami eigenpairs in the HKS sum. Default: 100. Range:
-    /// [8, 500]; meshes with fewer vertices use `vertices − 1`.
+    /// Number of lowest Laplace–Beltrami eigenpairs in the HKS sum. Default: 100. Meshes with
+    /// fewer vertices use `vertices − 1`.
+    #[schemars(range(min = 8, max = 500))]
     pub eigenpairs: usize,
-    /// Up direction (any length > 0, world axes) for the extra `n·up` dimension; `None` leaves
-    /// that dimension out. Default: `Some([0, 1, 0])` (the paper: "positive Y").
+    /// Up direction (any length > 0, world axes) for the extra `n·up` dimension; `None` (JSON
+    /// `null`) leaves that dimension out. Default: `[0, 1, 0]` (the paper: "positive Y").
     pub up: Option<[f32; 3]>,
 }
 
@@ -196,12 +215,7 @@ impl AutomaticFeatureParams {
     }
 
     fn validate(&self) -> Result<Option<[f64; 3]>, FeatureError> {
-        if !(1..=64).contains(&self.hks_times) {
-            return Err(invalid("hks_times", self.hks_times as f64, "[1, 64]"));
-        }
-        if !(8..=500).contains(&self.eigenpairs) {
-            return Err(invalid("eigenpairs", self.eigenpairs as f64, "[8, 500]"));
-        }
+        check_ranges(self)?;
         match self.up {
             None => Ok(None),
             Some(u) => {
@@ -314,12 +328,12 @@ pub fn automatic_features(
     Ok(FeatureField { dim, values })
 }
 
-/// Parameters of [`geodesic_affinities`].
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+/// Parameters of [`geodesic_affinities`] (`params.affinity` of `meshmatch`).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize, schemars::JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct AffinityParams {
     /// `σ = sigma_fraction · max_{i,v} G_S,i(v)` (dimensionless). Default: 1/3 (the paper).
-    /// Range: (0, 10].
+    #[schemars(range(max = 10), extend("exclusiveMinimum" = 0))]
     pub sigma_fraction: f32,
 }
 
@@ -415,10 +429,8 @@ pub fn geodesic_affinities_with(
     regularization: AffineRegularization,
     control: &Control,
 ) -> Result<(FeatureField, FeatureField, AffinityReport), FeatureError> {
+    check_ranges(params)?;
     let f = params.sigma_fraction;
-    if !(f.is_finite() && f > 0.0 && f <= 10.0) {
-        return Err(invalid("sigma_fraction", f64::from(f), "(0, 10]"));
-    }
     if pairs.is_empty() {
         return Err(FeatureError::NoCorrespondences);
     }

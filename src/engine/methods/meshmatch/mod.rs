@@ -29,17 +29,18 @@ pub mod sampling;
 pub mod upsample;
 pub mod vote;
 
+use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use crate::engine::asset::constraints::{Constraints, ConstraintsError};
 use crate::engine::control::Cancelled;
-use crate::engine::mesh::WeldParams;
 
 use features::{AffinityParams, AutomaticFeatureParams};
 
 pub use example::ExampleMask;
 pub use run::run;
 
+use super::shared_params::SharedParams;
 use super::{InputSpec, Method, MethodError, MethodInput, MethodOutput, ResultFile};
 use crate::engine::asset::constraints::MethodId;
 use crate::engine::control::Control;
@@ -57,7 +58,7 @@ impl Method for MeshMatch {
     }
 
     fn params_schema(&self) -> serde_json::Value {
-        super::schema::params_def("meshmatch_params")
+        super::params::schema_of::<MeshMatchParams>()
     }
 
     fn check(&self, constraints: &Constraints) -> Result<(), ConstraintsError> {
@@ -114,7 +115,7 @@ impl From<MeshMatchError> for MethodError {
 pub const MAX_SAMPLES: usize = 262_144;
 
 /// Which shape features describe a patch's place on the shape (§4.1).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum ShapeFeatures {
     /// Geodesic affinities when correspondences are given, HKS + up otherwise. Default.
@@ -131,7 +132,7 @@ pub enum ShapeFeatures {
 }
 
 /// How the two meshes' sizes relate.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum ScaleMode {
     /// Scale the source so both surfaces have the same area (texture features keep their size
@@ -143,30 +144,41 @@ pub enum ScaleMode {
 }
 
 /// Parameters of `meshmatch` (the `params` object of the constraints).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+// Ranges are on the fields and checked through the derived schema (`super::params`), nested
+// structs included; the shared options' doc, default and range come from `SharedParams`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
+#[schemars(transform = super::shared_params::shared_fields)]
 pub struct MeshMatchParams {
-    /// Vertices of the target synthesis mesh. Default 65,536 (the paper's 64K). Range
-    /// 256..=262,144 (memory grows about 3 KiB per vertex and mesh).
+    /// Vertices of the target synthesis mesh. Default 65,536 (the paper's 64K); memory grows
+    /// about 3 KiB per vertex and mesh.
+    #[schemars(range(min = 256, max = MAX_SAMPLES))]
     pub samples: usize,
     /// Vertices of the source synthesis mesh. Default: the target's density (same vertices per
-    /// unit area after scaling), at most 4 × `samples` and 262,144. Range 256..=262,144.
+    /// unit area after scaling), at most 4 × `samples` and 262,144.
+    #[schemars(range(min = 256, max = MAX_SAMPLES))]
     pub source_samples: Option<usize>,
     /// Relative size of the meshes. Default `match_area`.
     pub scale: ScaleMode,
-    /// Vertices of the coarsest level. Default 128 (paper). Range 16..=100,000.
+    /// Vertices of the coarsest level. Default 128 (paper).
+    #[schemars(range(min = 16, max = 100_000))]
     pub min_vertices: usize,
-    /// EM iterations per level. Default 5 (paper). Range 1..=100.
+    /// EM iterations per level. Default 5 (paper).
+    #[schemars(range(min = 1, max = 100))]
     pub iterations: usize,
     /// A level stops early when fewer than this fraction of matches changed in an iteration.
-    /// Default 0.01. Range [0, 1].
+    /// Default 0.01.
+    #[schemars(range(min = 0, max = 1))]
     pub convergence: f32,
-    /// Fan rings `R`. Default 3 (paper). Range 1..=8.
+    /// Fan rings `R`. Default 3 (paper).
+    #[schemars(range(min = 1, max = 8))]
     pub rings: usize,
-    /// Fan spokes `A`. Default 18 (paper). Range 4..=64.
+    /// Fan spokes `A`. Default 18 (paper).
+    #[schemars(range(min = 4, max = 64))]
     pub spokes: usize,
     /// Outer fan radius in mean edge lengths of the target level. Default 3 (the paper's fans
-    /// span about three rings). Range (0, 20].
+    /// span about three rings).
+    #[schemars(range(max = 20), extend("exclusiveMinimum" = 0))]
     pub fan_radius: f32,
     /// Shape features. Default `auto`.
     pub shape_features: ShapeFeatures,
@@ -175,19 +187,22 @@ pub struct MeshMatchParams {
     /// Geodesic affinities.
     pub affinity: AffinityParams,
     /// Shape features are computed on the finest level with at most this many vertices and
-    /// carried to the others. Default 8,000. Range 100..=1,000,000.
+    /// carried to the others. Default 8,000.
+    #[schemars(range(min = 100, max = 1_000_000))]
     pub feature_vertices: usize,
     /// Weight of the shape block relative to colour on the coarsest level (1 = equal after
     /// normalizing for dimension and variance, the paper's §5.2 setting). Default 2: measured on
     /// the test suite, equal weights let colour win too often (Spot onto its remesh with 8
     /// correspondences: low-passed correlation with the ground truth 0.56 at 1, 0.66 at 2, 0.85
     /// at 4), while the stripe test keeps the source's stripe period up to 2 (×1.03–1.18) and
-    /// starts stretching at 2.5 (×1.37). Range [0, 100].
+    /// starts stretching at 2.5 (×1.37).
+    #[schemars(range(min = 0, max = 100))]
     pub shape_weight: f32,
     /// Shape weight on the finest level (geometric in between). Default: `shape_weight`.
-    /// Range [0, 100].
+    #[schemars(range(min = 0, max = 100))]
     pub finest_shape_weight: Option<f32>,
-    /// Vote Gaussian σ as a fraction of the fan radius. Default 0.5. Range (0, 10].
+    /// Vote Gaussian σ as a fraction of the fan radius. Default 0.5.
+    #[schemars(range(max = 10), extend("exclusiveMinimum" = 0))]
     pub vote_sigma: f32,
     /// Copy the matched colour at the finest level instead of voting (paper's last step).
     /// Default true.
@@ -197,13 +212,11 @@ pub struct MeshMatchParams {
     pub randomized_rotations: bool,
     /// By-example mode (§5.3): which part of the target is painted. Default none.
     pub example: Option<ExampleMask>,
-    /// Vertex count of the refined copy written for target primitives without UVs. Default
-    /// 100,000. Range 1..=4,000,000.
+    /// Shared: [`SharedParams::vertex_color_samples`].
     pub vertex_color_samples: usize,
-    /// Largest distance from a correspondence point to its surface, as a fraction of the
-    /// bounding-box diagonal. Default 0.02. Range (0, 1].
+    /// Shared: [`SharedParams::snap_tolerance`].
     pub snap_tolerance: f32,
-    /// Relative weld tolerance of both surfaces. Default 1e-6.
+    /// Shared: [`SharedParams::weld_tolerance`].
     pub weld_tolerance: f32,
     /// Write the nearest-neighbour field artifact `nnf.bin`. Default true.
     pub write_nnf: bool,
@@ -214,6 +227,7 @@ pub struct MeshMatchParams {
 
 impl Default for MeshMatchParams {
     fn default() -> Self {
+        let shared = SharedParams::default();
         Self {
             samples: 65_536,
             source_samples: None,
@@ -234,9 +248,9 @@ impl Default for MeshMatchParams {
             nearest_neighbor_final: true,
             randomized_rotations: false,
             example: None,
-            vertex_color_samples: 100_000,
-            snap_tolerance: 0.02,
-            weld_tolerance: WeldParams::default().relative_tolerance,
+            vertex_color_samples: shared.vertex_color_samples,
+            snap_tolerance: shared.snap_tolerance,
+            weld_tolerance: shared.weld_tolerance,
             write_nnf: true,
             measure_fidelity: false,
         }
@@ -245,130 +259,36 @@ impl Default for MeshMatchParams {
 
 impl MeshMatchParams {
     /// Reads and range-checks the parameters from the constraints' `params`.
+    ///
+    /// # Errors
+    /// A [`ConstraintsError`] naming `params.<path>` (`params.hks.eigenpairs`).
     pub fn from_constraints(c: &Constraints) -> Result<Self, ConstraintsError> {
         let p: MeshMatchParams = c.method_params()?;
         p.validate().map_err(|e| match e {
             MeshMatchError::Param { name, message } => {
                 ConstraintsError::new(format!("params.{name}"), message)
             }
+            MeshMatchError::Constraints(c) => c,
             other => ConstraintsError::new("params", other.to_string()),
         })?;
         Ok(p)
     }
 
-    /// Checks every range.
+    /// Checks every range (those of the derived schema, nested `hks`, `affinity` and `example`
+    /// included) and what a schema cannot say: `hks.up` must be a finite non-zero vector.
+    ///
+    /// # Errors
+    /// [`MeshMatchError::Constraints`] for a value out of range (path `params.<path>`),
+    /// [`MeshMatchError::Param`] for `hks.up`.
     pub fn validate(&self) -> Result<(), MeshMatchError> {
-        fn check(
-            ok: bool,
-            name: &'static str,
-            value: String,
-            range: &str,
-        ) -> Result<(), MeshMatchError> {
-            if ok {
-                Ok(())
-            } else {
-                Err(MeshMatchError::Param {
-                    name,
-                    message: format!("{value} is outside the range {range}"),
-                })
+        super::params::check_ranges(self).map_err(|e| MeshMatchError::Constraints(e.into()))?;
+        if let Some(up) = self.hks.up {
+            if !(up.iter().all(|x| x.is_finite()) && up.iter().any(|x| *x != 0.0)) {
+                return Err(MeshMatchError::Param {
+                    name: "hks",
+                    message: format!("up {up:?} is outside the range a finite non-zero vector"),
+                });
             }
-        }
-        let p = self;
-        check(
-            (256..=MAX_SAMPLES).contains(&p.samples),
-            "samples",
-            p.samples.to_string(),
-            "256..=262144",
-        )?;
-        if let Some(s) = p.source_samples {
-            check(
-                (256..=MAX_SAMPLES).contains(&s),
-                "source_samples",
-                s.to_string(),
-                "256..=262144",
-            )?;
-        }
-        check(
-            (16..=100_000).contains(&p.min_vertices),
-            "min_vertices",
-            p.min_vertices.to_string(),
-            "16..=100000",
-        )?;
-        check(
-            (1..=100).contains(&p.iterations),
-            "iterations",
-            p.iterations.to_string(),
-            "1..=100",
-        )?;
-        check(
-            (0.0..=1.0).contains(&p.convergence),
-            "convergence",
-            p.convergence.to_string(),
-            "[0, 1]",
-        )?;
-        check(
-            (1..=8).contains(&p.rings),
-            "rings",
-            p.rings.to_string(),
-            "1..=8",
-        )?;
-        check(
-            (4..=64).contains(&p.spokes),
-            "spokes",
-            p.spokes.to_string(),
-            "4..=64",
-        )?;
-        check(
-            p.fan_radius > 0.0 && p.fan_radius <= 20.0,
-            "fan_radius",
-            p.fan_radius.to_string(),
-            "(0, 20]",
-        )?;
-        check(
-            (100..=1_000_000).contains(&p.feature_vertices),
-            "feature_vertices",
-            p.feature_vertices.to_string(),
-            "100..=1000000",
-        )?;
-        check(
-            (0.0..=100.0).contains(&p.shape_weight),
-            "shape_weight",
-            p.shape_weight.to_string(),
-            "[0, 100]",
-        )?;
-        if let Some(w) = p.finest_shape_weight {
-            check(
-                (0.0..=100.0).contains(&w),
-                "finest_shape_weight",
-                w.to_string(),
-                "[0, 100]",
-            )?;
-        }
-        check(
-            p.vote_sigma > 0.0 && p.vote_sigma <= 10.0,
-            "vote_sigma",
-            p.vote_sigma.to_string(),
-            "(0, 10]",
-        )?;
-        check(
-            (1..=4_000_000).contains(&p.vertex_color_samples),
-            "vertex_color_samples",
-            p.vertex_color_samples.to_string(),
-            "1..=4000000",
-        )?;
-        check(
-            p.snap_tolerance > 0.0 && p.snap_tolerance <= 1.0,
-            "snap_tolerance",
-            p.snap_tolerance.to_string(),
-            "(0, 1]",
-        )?;
-        if let Some(up) = p.hks.up {
-            check(
-                up.iter().all(|x| x.is_finite()) && up.iter().any(|x| *x != 0.0),
-                "hks",
-                format!("up {up:?}"),
-                "a finite non-zero vector",
-            )?;
         }
         Ok(())
     }
@@ -385,7 +305,7 @@ pub enum MeshMatchError {
         /// What is wrong.
         message: String,
     },
-    /// The constraints are invalid (a correspondence, the example mask).
+    /// The constraints are invalid (a parameter out of range, a correspondence, the example mask).
     #[error(transparent)]
     Constraints(#[from] ConstraintsError),
     /// A surface could not be built.

@@ -114,6 +114,7 @@ pub fn run(
     params: &MeshMatchParams,
     control: &Control,
 ) -> Result<RunOutput, MeshMatchError> {
+    params.validate()?;
     let mut warnings = Vec::new();
     let weld = WeldParams {
         relative_tolerance: params.weld_tolerance,

@@ -13,11 +13,13 @@
 //! [`super::align`]). Parallel over texel rows with rayon; every texel is independent, so the
 //! output does not depend on the thread count.
 
+use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::align::{best_similarity, Similarity};
 use super::color_output::{dot, to_f32, write_color_field, ColorField};
 use super::correspondence::resolve_on_surfaces;
+use super::shared_params::SharedParams;
 use super::{InputSpec, Method, MethodError, MethodInput, MethodOutput};
 use crate::engine::asset::constraints::{Constraints, ConstraintsError, MethodId};
 use crate::engine::asset::edits::Edit;
@@ -31,81 +33,51 @@ use crate::engine::texture::sample::MaterialSampler;
 pub use super::color_output::{TextureReport, VertexColorReport};
 
 /// Parameters of the `project` method (the `params` object of the constraints).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+// Ranges are on the fields and checked through the derived schema (`super::params`); the shared
+// options' doc, default and range come from `SharedParams`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
+#[schemars(transform = super::shared_params::shared_fields)]
 pub struct ProjectParams {
     /// Largest source–target distance accepted, as a fraction of the target's bounding-box
-    /// diagonal. Default: none (unbounded). Range (0, 10].
+    /// diagonal. Default: none (unbounded).
+    #[schemars(range(max = 10), extend("exclusiveMinimum" = 0))]
     pub max_distance: Option<f32>,
     /// Largest angle between the target face normal and the source face normal, in degrees.
-    /// Default: none (no gating). Range (0, 180].
+    /// Default: none (no gating).
+    #[schemars(range(max = 180), extend("exclusiveMinimum" = 0))]
     pub max_normal_angle: Option<f32>,
     /// Align the source to the target from the correspondences (needs at least 2). Default true.
     pub align: bool,
-    /// Vertex count of the refined copy written for target primitives without UVs (COLOR_0).
-    /// Default 100,000. Range 1..=4,000,000.
+    /// Shared: [`SharedParams::vertex_color_samples`].
     pub vertex_color_samples: usize,
-    /// Largest distance from a correspondence point to its surface, as a fraction of that
-    /// surface's bounding-box diagonal. Default 0.02. Range (0, 1].
+    /// Shared: [`SharedParams::snap_tolerance`].
     pub snap_tolerance: f32,
-    /// Relative weld tolerance of both surfaces (see [`WeldParams`]). Default 1e-6.
+    /// Shared: [`SharedParams::weld_tolerance`] (see [`WeldParams`]).
     pub weld_tolerance: f32,
 }
 
 impl Default for ProjectParams {
     fn default() -> Self {
+        let shared = SharedParams::default();
         Self {
             max_distance: None,
             max_normal_angle: None,
             align: true,
-            vertex_color_samples: 100_000,
-            snap_tolerance: 0.02,
-            weld_tolerance: WeldParams::default().relative_tolerance,
+            vertex_color_samples: shared.vertex_color_samples,
+            snap_tolerance: shared.snap_tolerance,
+            weld_tolerance: shared.weld_tolerance,
         }
     }
 }
 
 impl ProjectParams {
     /// Reads and range-checks the parameters from the constraints' `params`.
+    ///
+    /// # Errors
+    /// A [`ConstraintsError`] naming `params.<field>`.
     pub fn from_constraints(c: &Constraints) -> Result<Self, ConstraintsError> {
-        let p: ProjectParams = c.method_params()?;
-        let bad =
-            |field: &str, msg: String| Err(ConstraintsError::new(format!("params.{field}"), msg));
-        if let Some(d) = p.max_distance {
-            if !(d > 0.0 && d <= 10.0) {
-                return bad("max_distance", format!("{d} is outside the range (0, 10]"));
-            }
-        }
-        if let Some(a) = p.max_normal_angle {
-            if !(a > 0.0 && a <= 180.0) {
-                return bad(
-                    "max_normal_angle",
-                    format!("{a} is outside the range (0, 180]"),
-                );
-            }
-        }
-        if !(1..=4_000_000).contains(&p.vertex_color_samples) {
-            return bad(
-                "vertex_color_samples",
-                format!(
-                    "{} is outside the range 1..=4000000",
-                    p.vertex_color_samples
-                ),
-            );
-        }
-        if !(p.snap_tolerance > 0.0 && p.snap_tolerance <= 1.0) {
-            return bad(
-                "snap_tolerance",
-                format!("{} is outside the range (0, 1]", p.snap_tolerance),
-            );
-        }
-        if !(0.0..=1e-2).contains(&p.weld_tolerance) {
-            return bad(
-                "weld_tolerance",
-                format!("{} is outside the range [0, 0.01]", p.weld_tolerance),
-            );
-        }
-        Ok(p)
+        super::params::parse(c)
     }
 }
 
@@ -227,7 +199,7 @@ impl Method for Project {
     }
 
     fn params_schema(&self) -> serde_json::Value {
-        super::schema::params_def("project_params")
+        super::params::schema_of::<ProjectParams>()
     }
 
     fn check(&self, constraints: &Constraints) -> Result<(), ConstraintsError> {
