@@ -29,6 +29,13 @@ fn spot() -> (Vec<u8>, Asset) {
     (bytes, asset)
 }
 
+/// Spot as the only file of a blob set, named `spot.glb`.
+fn spot_blobs() -> BlobSet {
+    let mut blobs = BlobSet::new();
+    blobs.insert("spot.glb", spot().0);
+    blobs
+}
+
 /// The JSON chunk of a GLB.
 fn gltf_json(glb: &[u8]) -> Value {
     let len = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
@@ -245,9 +252,7 @@ fn edits_that_do_not_fit_are_errors() {
 
 #[test]
 fn a_method_registered_in_a_test_runs_through_the_pipeline() {
-    let (bytes, _) = spot();
-    let mut blobs = BlobSet::new();
-    blobs.insert("spot.glb", bytes);
+    let blobs = spot_blobs();
     let jpeg = small_jpeg();
     let constraints = Constraints::from_json(br#"{"version": 1, "method": "pattern"}"#).unwrap();
     let target = ModelInput {
@@ -303,9 +308,7 @@ fn a_method_registered_in_a_test_runs_through_the_pipeline() {
 
 #[test]
 fn a_source_the_method_does_not_read_is_ignored_with_a_warning() {
-    let (bytes, _) = spot();
-    let mut blobs = BlobSet::new();
-    blobs.insert("spot.glb", bytes);
+    let blobs = spot_blobs();
     let m = ModelInput {
         main: "spot.glb",
         blobs: &blobs,
@@ -330,9 +333,7 @@ fn a_source_the_method_does_not_read_is_ignored_with_a_warning() {
 
 #[test]
 fn project_needs_a_source_and_checks_params_before_loading() {
-    let (bytes, _) = spot();
-    let mut blobs = BlobSet::new();
-    blobs.insert("spot.glb", bytes);
+    let blobs = spot_blobs();
     let m = ModelInput {
         main: "spot.glb",
         blobs: &blobs,
@@ -490,9 +491,7 @@ fn the_color_0_fallback_keeps_to_its_vertex_budget() {
 
 #[test]
 fn meshmatch_progress_never_goes_backwards_and_reaches_one_at_the_end() {
-    let (bytes, _) = spot();
-    let mut blobs = BlobSet::new();
-    blobs.insert("spot.glb", bytes);
+    let blobs = spot_blobs();
     let m = ModelInput {
         main: "spot.glb",
         blobs: &blobs,
