@@ -186,7 +186,7 @@ fn unexpected_output_extensions_warn() {
 fn a_model_that_is_not_gltf_is_named() {
     let out = retex()
         .arg("inspect")
-        .arg(shared_asset("src_spot_keenan/spot_triangulated.obj"))
+        .arg(test_data("src_spot_keenan/spot_triangulated.obj"))
         .output()
         .unwrap();
     assert!(!out.status.success());
