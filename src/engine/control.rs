@@ -135,11 +135,6 @@ impl Control {
         self.lock().prefix = prefix.to_string();
     }
 
-    /// Stages started so far.
-    pub fn stages_started(&self) -> u32 {
-        self.lock().started
-    }
-
     /// Requests cancellation; running loops stop at their next check.
     pub fn cancel(&self) {
         self.inner.cancel.store(true, Ordering::SeqCst);

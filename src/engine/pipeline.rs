@@ -273,13 +273,11 @@ fn load_inputs(
     let spec = method.inputs();
     let id = method.id().as_str();
     let mut warnings = Vec::new();
-    let wanted = |name: &'static str, given: bool, used: InputUse| match (given, used) {
-        (false, InputUse::Required) => Err(TransferError::MissingInput {
+    let wanted = |name: &'static str, given: bool, used: InputUse| {
+        used.reads(given).ok_or(TransferError::MissingInput {
             method: id,
             input: name,
-        }),
-        (true, InputUse::Unused) => Ok(false),
-        (given, _) => Ok(given),
+        })
     };
     let use_source = wanted("source", input.source.is_some(), spec.source)?;
     let use_base = wanted("source_base", input.source_base.is_some(), spec.source_base)?;

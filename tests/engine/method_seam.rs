@@ -365,10 +365,6 @@ struct CheckedNormals<'a> {
 }
 
 impl retex::engine::methods::output::SurfaceField for CheckedNormals<'_> {
-    fn channels(&self) -> usize {
-        3
-    }
-
     fn sample(
         &self,
         at: &retex::engine::methods::output::SurfaceSample,

@@ -524,6 +524,15 @@ impl Surface {
         self.faces[face].map(|v| self.positions[v as usize])
     }
 
+    /// The distance from `p` to `face`, widened by a relative 1e-4 (and 1e-12) so that a
+    /// closest-point search bounded by it still finds that face and any tie: the warm-start
+    /// bound of texel-by-texel closest-point queries, where `face` was the previous texel's hit.
+    pub fn hint_bound(&self, face: usize, p: [f32; 3]) -> f32 {
+        let [a, b, c] = self.face_positions(face);
+        let (d2, _, _) = crate::engine::spatial::point_triangle_distance_squared(p, a, b, c);
+        d2.sqrt() * (1.0 + 1e-4) + 1e-12
+    }
+
     /// The point with barycentric coordinates `bary` (weights of corners 0, 1, 2) on `face`.
     pub fn face_point(&self, face: usize, bary: [f32; 3]) -> [f32; 3] {
         let [a, b, c] = self.face_positions(face);

@@ -9,7 +9,6 @@ use crate::engine::asset::edits::{Edit, TextureSlot};
 use crate::engine::asset::Asset;
 use crate::engine::control::{Cancelled, Control};
 
-pub(super) use super::output::{dot, to_f32};
 use super::output::{write_field, FieldOutput, TexelEncoding};
 pub use super::output::{
     OutputReport as ColorOutputReport, SurfaceField, SurfaceSample, TextureReport,
@@ -29,10 +28,6 @@ pub trait ColorField: Sync {
 struct AsSurfaceField<'a>(&'a dyn ColorField);
 
 impl SurfaceField for AsSurfaceField<'_> {
-    fn channels(&self) -> usize {
-        4
-    }
-
     fn sample(&self, at: &SurfaceSample, hint: Option<u32>, out: &mut [f32; 4]) -> Option<u32> {
         let (color, next) = self.0.color_at(at.position, at.normal, hint)?;
         *out = color;

@@ -20,6 +20,18 @@ pub enum InputUse {
     Unused,
 }
 
+impl InputUse {
+    /// Whether an input that was (or was not) `given` is read: `Some(false)` for an unused one
+    /// (ignored, with a warning by the caller), `None` for a required one that is missing.
+    pub fn reads(self, given: bool) -> Option<bool> {
+        match (self, given) {
+            (InputUse::Required, false) => None,
+            (InputUse::Unused, _) => Some(false),
+            (_, given) => Some(given),
+        }
+    }
+}
+
 /// The inputs a method reads besides the target (always required) and the constraints.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct InputSpec {

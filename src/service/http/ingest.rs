@@ -265,11 +265,8 @@ pub async fn read_upload(
     if received.target.is_empty() {
         return Err(missing("target"));
     }
-    let wanted = |given: bool, used: InputUse, part: &str| match used {
-        InputUse::Required if !given => Err(missing(part)),
-        InputUse::Unused => Ok(false),
-        _ => Ok(given),
-    };
+    let wanted =
+        |given: bool, used: InputUse, part: &str| used.reads(given).ok_or_else(|| missing(part));
     let use_source = wanted(!received.source.is_empty(), spec.source, "source")?;
     let use_base = wanted(
         !received.source_base.is_empty(),

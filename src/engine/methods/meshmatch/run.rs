@@ -73,12 +73,7 @@ impl ColorField for SynthesizedField<'_> {
         _normal: [f32; 3],
         hint: Option<u32>,
     ) -> Option<([f32; 4], u32)> {
-        let mut bound = f32::INFINITY;
-        if let Some(h) = hint {
-            let [a, b, c] = self.surface.face_positions(h as usize);
-            let (d2, _, _) = crate::engine::spatial::point_triangle_distance_squared(p, a, b, c);
-            bound = d2.sqrt() * (1.0 + 1e-4) + 1e-12;
-        }
+        let bound = hint.map_or(f32::INFINITY, |h| self.surface.hint_bound(h as usize, p));
         let hit = self.bvh.closest_point(p, bound)?;
         let f = self.surface.faces[hit.face as usize];
         if let Some(o) = &self.original {

@@ -49,12 +49,10 @@ pub struct SurfaceSample {
     pub normal: [f32; 3],
 }
 
-/// A field of `channels()` values (1..=4) over the edited asset's surface.
+/// A field of 1 to 4 values per point over the edited asset's surface (how many are stored is
+/// the [`FieldOutput`]'s encoding: 3 for a linear RGB normal map, 1 for 16-bit gray, ...).
 pub trait SurfaceField: Sync {
-    /// Values per sample, 1..=4.
-    fn channels(&self) -> usize;
-
-    /// Writes the values at `at` into `out[..channels()]` and returns a hint for the next nearby
+    /// Writes the values at `at` into `out` and returns a hint for the next nearby
     /// sample (same texel row), or `None` where the field has no value there (the texel is
     /// counted unmatched and filled by padding; a vertex takes its neighbours' mean). `hint` is
     /// what the previous call returned for a nearby sample, or `None`.

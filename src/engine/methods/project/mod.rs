@@ -17,7 +17,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::align::{best_similarity, Similarity};
-use super::color_output::{dot, to_f32, write_color_field, ColorField};
+use super::color_output::{write_color_field, ColorField};
 use super::correspondence::resolve_on_surfaces;
 use super::shared_params::SharedParams;
 use super::{InputSpec, Method, MethodError, MethodInput, MethodOutput};
@@ -25,8 +25,8 @@ use crate::engine::asset::constraints::{Constraints, ConstraintsError, MethodId}
 use crate::engine::asset::edits::Edit;
 use crate::engine::asset::Asset;
 use crate::engine::control::Control;
+use crate::engine::math::{dot, to_f32};
 use crate::engine::mesh::{build_surface, Surface, WeldParams};
-use crate::engine::spatial::triangle::point_triangle_distance_squared;
 use crate::engine::spatial::Bvh;
 use crate::engine::texture::sample::MaterialSampler;
 
@@ -159,9 +159,7 @@ impl ColorField for SourceField<'_> {
         };
         let mut bound = self.max_distance;
         if let Some(h) = hint.filter(|h| accept(*h)) {
-            let [a, b, c] = self.surface.face_positions(h as usize);
-            let (d2, _, _) = point_triangle_distance_squared(p, a, b, c);
-            bound = bound.min(d2.sqrt() * (1.0 + 1e-4) + 1e-12);
+            bound = bound.min(self.surface.hint_bound(h as usize, p));
         }
         let hit = match self.min_cos {
             None => self.bvh.closest_point(p, bound),
