@@ -464,7 +464,7 @@ fn the_color_0_fallback_keeps_to_its_vertex_budget() {
         p.tex_coords.clear();
     }
     let c = Constraints::default();
-    for budget in [5_000usize, 20_000, 60_000] {
+    for budget in [5_000usize, 12_000, 20_000, 35_000, 60_000, 100_000] {
         let (edits, report) = write_color_field(
             &asset,
             &c,

@@ -279,42 +279,57 @@ fn budgeted_geometries(
         let total = geometries.iter().map(|g| g.positions.len()).sum();
         Ok((geometries, total))
     };
+    // Refinement only adds vertices: below this count nothing can go.
+    let floor: usize = vertex_path
+        .iter()
+        .map(|&(p, _)| asset.primitives[p].positions.len())
+        .sum();
     let mut edge = edge_length_for_vertex_count(area, output.vertex_samples);
+    if floor as f64 > budget || !edge.is_finite() {
+        // The inputs alone are over the budget (or there is nothing to refine): no refinement.
+        return Ok(build(f32::INFINITY)?.0);
+    }
     let (first, total) = build(edge)?;
-    if total as f64 <= budget || !edge.is_finite() {
+    if total as f64 <= budget {
         return Ok(first);
     }
-    // (bound, count) over budget, and the best (bound, geometry, count) under it.
-    let mut over = (edge, total);
+    // The last bound over budget, and the best (bound, geometry, count) under it.
+    let mut over = edge;
+    let mut over_count = total;
     let mut under: Option<(f32, Vec<VertexGeometry>, usize)> = None;
-    let mut fallback = first;
+    // While no bound under budget is known, the bound is lengthened by the square root of the
+    // overshoot (at least 5%), and by half again for every step that did not lower the count
+    // (bisection levels are discrete).
+    let mut boost = 1.0f64;
     for _ in 1..BUDGET_SEARCH_STEPS {
         edge = match &under {
-            None => over.0 * (over.1 as f64 / budget).sqrt().max(1.05) as f32,
-            Some((u, _, _)) => 0.5 * (over.0 + u),
+            None => over * ((over_count as f64 / budget).sqrt().max(1.05) * boost) as f32,
+            Some((u, _, _)) => 0.5 * (over + u),
         };
         let (g, total) = build(edge)?;
         if total as f64 <= budget {
-            let better = under.as_ref().is_none_or(|(_, _, best)| total >= *best);
-            if better {
+            if under.as_ref().is_none_or(|(_, _, best)| total >= *best) {
                 under = Some((edge, g, total));
             }
         } else {
-            if total == over.1 && under.is_none() {
-                // Nothing left to refine away (the input alone is over the budget).
-                fallback = g;
-                break;
+            if total >= over_count {
+                boost *= 1.5;
             }
-            over = (edge, total);
-            fallback = g;
+            over = edge;
+            over_count = total;
         }
-        if let Some((_, _, best)) = &under {
-            if *best as f64 >= 0.85 * budget {
-                break;
-            }
+        if under
+            .as_ref()
+            .is_some_and(|(_, _, best)| *best as f64 >= 0.85 * budget)
+        {
+            break;
         }
     }
-    Ok(under.map_or(fallback, |(_, g, _)| g))
+    match under {
+        Some((_, g, _)) => Ok(g),
+        // Never under budget within the steps: the unrefined inputs fit (floor <= budget).
+        None => Ok(build(f32::INFINITY)?.0),
+    }
 }
 
 /// The vertex path's edits, kept by kind so they are exported in a fixed order: materials
