@@ -1,6 +1,7 @@
 //! `retex bench --method meshmatch`: times MeshMatch (Chen et al. 2012, §5.5) at the paper's
 //! size, a 64K-vertex target and source (Spot → remeshed Spot, 8 HKS + up features, 3 × 18 RGB
-//! fans), stage by stage from the job report, with exhaustive and randomized rotation search,
+//! fans), stage by stage from the job report's stage timings (measured by `Control`; the method keeps
+//! no stopwatch of its own), with exhaustive and randomized rotation search,
 //! and prints the peak resident memory of the process. Prints a Markdown table for the README.
 
 use std::path::Path;
@@ -8,7 +9,7 @@ use std::time::Instant;
 
 use retex::engine::asset::constraints::Constraints;
 use retex::engine::asset::BlobSet;
-use retex::engine::control::Control;
+use retex::engine::control::{Control, StageTiming};
 use retex::engine::pipeline::{transfer, ModelInput, TransferInput};
 
 fn median(mut v: Vec<f64>) -> f64 {
@@ -25,6 +26,76 @@ pub(super) fn peak_rss_mib() -> Option<f64> {
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
     Some(kib / 1024.0)
+}
+
+/// A run's stage timings (the job report's `timings`, measured by `Control`) summed by phase.
+#[derive(Default)]
+struct Phases {
+    /// From `meshmatch: hierarchy` up to `meshmatch: features`.
+    hierarchy: f64,
+    /// From `meshmatch: features` up to the first level.
+    features: f64,
+    /// Every `meshmatch level …` stage.
+    levels: f64,
+    /// Stages of the finest level outside its iterations (source fans, charts, stencil, first vote).
+    finest_setup: f64,
+    /// Per finest-level iteration: target fans, E-step, vote.
+    fans: Vec<f64>,
+    e_step: Vec<f64>,
+    vote: Vec<f64>,
+}
+
+impl Phases {
+    fn of(timings: &[StageTiming]) -> Phases {
+        // "meshmatch level a/b[ iteration k]: name": the finest level is a == b.
+        let level = |stage: &str| -> Option<(bool, bool, String)> {
+            let rest = stage.strip_prefix("meshmatch level ")?;
+            let (head, name) = rest.split_once(": ")?;
+            let (fraction, iteration) = match head.split_once(" iteration ") {
+                Some((f, _)) => (f, true),
+                None => (head, false),
+            };
+            let (a, b) = fraction.split_once('/')?;
+            Some((a == b, iteration, name.to_string()))
+        };
+        let mut p = Phases::default();
+        #[derive(PartialEq)]
+        enum At {
+            Before,
+            Hierarchy,
+            Features,
+            Levels,
+            After,
+        }
+        let mut at = At::Before;
+        for t in timings {
+            let lv = level(&t.stage);
+            at = match (&at, t.stage.as_str(), &lv) {
+                (_, "meshmatch: hierarchy", _) => At::Hierarchy,
+                (_, "meshmatch: features", _) => At::Features,
+                (_, _, Some(_)) => At::Levels,
+                (At::Levels, _, None) => At::After,
+                _ => at,
+            };
+            match at {
+                At::Hierarchy => p.hierarchy += t.ms,
+                At::Features => p.features += t.ms,
+                At::Levels => p.levels += t.ms,
+                At::Before | At::After => {}
+            }
+            match lv {
+                Some((true, false, _)) => p.finest_setup += t.ms,
+                Some((true, true, name)) => match name.as_str() {
+                    "geodesic fans" => p.fans.push(t.ms),
+                    "E-step" => p.e_step.push(t.ms),
+                    "vote" => p.vote.push(t.ms),
+                    _ => {}
+                },
+                _ => {}
+            }
+        }
+        p
+    }
 }
 
 struct Measured {
@@ -89,33 +160,24 @@ fn measure(assets: &Path, runs: usize, randomized: bool) -> Result<Measured, Str
             m.completeness = s["fidelity"]["completeness"].as_f64().unwrap_or(f64::NAN);
             continue;
         }
+        let p = Phases::of(&out.report.timings);
         m.whole.push(whole);
-        m.synth.push(s["total_ms"].as_f64().unwrap_or(f64::NAN));
-        m.hierarchy
-            .push(s["hierarchy_ms"].as_f64().unwrap_or(f64::NAN));
-        m.features
-            .push(s["features_ms"].as_f64().unwrap_or(f64::NAN));
+        m.synth.push(p.hierarchy + p.features + p.levels);
+        m.hierarchy.push(p.hierarchy);
+        m.features.push(p.features);
+        m.level0_setup.push(p.finest_setup);
+        m.e_step.extend(p.e_step);
+        m.vote.extend(p.vote);
+        m.fans.extend(p.fans);
         let finest = s["levels"]
             .as_array()
             .and_then(|l| l.last())
             .cloned()
             .unwrap_or_default();
         let its = finest["iterations"].as_array().cloned().unwrap_or_default();
-        let mut iter_sum = 0.0;
-        for it in &its {
-            let (e, v, f) = (
-                it["e_step_ms"].as_f64().unwrap_or(0.0),
-                it["vote_ms"].as_f64().unwrap_or(0.0),
-                it["fans_ms"].as_f64().unwrap_or(0.0),
-            );
-            m.e_step.push(e);
-            m.vote.push(v);
-            m.fans.push(f);
-            iter_sum += e + v + f;
+        if let Some(it) = its.last() {
             m.energy = it["energy"].as_f64().unwrap_or(f64::NAN);
         }
-        m.level0_setup
-            .push(finest["ms"].as_f64().unwrap_or(f64::NAN) - iter_sum);
     }
     Ok(m)
 }

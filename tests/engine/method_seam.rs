@@ -509,8 +509,30 @@ fn meshmatch_progress_never_goes_backwards_and_reaches_one_at_the_end() {
         }
         worker.join().unwrap()
     });
-    out.unwrap();
+    let out = out.unwrap();
     assert!(seen.len() > 20, "only {} polls", seen.len());
+    // Timings come from the control's stages (no stopwatch inside the method): every EM
+    // iteration of every level shows its target fans, E-step and vote, and the report keeps no
+    // millisecond fields of its own.
+    let stages: Vec<&str> = out
+        .report
+        .timings
+        .iter()
+        .map(|t| t.stage.as_str())
+        .collect();
+    for name in ["geodesic fans", "E-step", "vote"] {
+        let n = stages
+            .iter()
+            .filter(|s| s.contains(" iteration 1: ") && s.ends_with(name))
+            .count();
+        let levels = out.report.method_report["synthesis"]["levels"]
+            .as_array()
+            .unwrap()
+            .len();
+        assert_eq!(n, levels, "{name}: {stages:?}");
+    }
+    let report = out.report.method_report.to_string();
+    assert!(!report.contains("_ms\""), "{report}");
     for w in seen.windows(2) {
         assert!(
             w[1].0 >= w[0].0,

@@ -17,8 +17,6 @@
 //! By-example mode (§5.3): source and target are the same mesh; painted vertices keep their colour
 //! and matches may only use painted vertices whose whole fan lies in the painted region.
 
-use std::time::Instant;
-
 use serde::Serialize;
 
 use crate::engine::control::Control;
@@ -74,12 +72,6 @@ pub struct IterationReport {
     pub propagated: usize,
     /// Matches changed by random search.
     pub searched: usize,
-    /// Milliseconds: target fans, E-step, vote.
-    pub fans_ms: f64,
-    /// E-step milliseconds (refresh + propagation + random search).
-    pub e_step_ms: f64,
-    /// Vote milliseconds.
-    pub vote_ms: f64,
 }
 
 /// One level.
@@ -99,8 +91,6 @@ pub struct LevelReport {
     pub iterations: Vec<IterationReport>,
     /// Whether the field stabilized before the iteration limit.
     pub converged: bool,
-    /// Milliseconds for the whole level (including source fans and the vote stencil).
-    pub ms: f64,
 }
 
 /// Figures of a synthesis.
@@ -116,12 +106,6 @@ pub struct MatchReport {
     pub affinity: Option<AffinityReport>,
     /// Coherence, source self-match and completeness (with `measure_fidelity`).
     pub fidelity: Option<Fidelity>,
-    /// Milliseconds: hierarchies.
-    pub hierarchy_ms: f64,
-    /// Milliseconds: shape features.
-    pub features_ms: f64,
-    /// Milliseconds: everything.
-    pub total_ms: f64,
 }
 
 /// The result: colours of the target synthesis vertices and the finest field.
@@ -132,10 +116,6 @@ pub struct MatchOutput {
     pub nnf: Nnf,
     /// Figures.
     pub report: MatchReport,
-}
-
-fn ms(t: Instant) -> f64 {
-    t.elapsed().as_secs_f64() * 1e3
 }
 
 fn std_per_dim(values: &[f32], dim: usize) -> Vec<f32> {
@@ -275,7 +255,6 @@ pub fn synthesize(
     control: &Control,
 ) -> Result<MatchOutput, MeshMatchError> {
     params.validate()?;
-    let start = Instant::now();
     if input.source_colors.len() != input.source.vertex_count() {
         return Err(MeshMatchError::Param {
             name: "source_colors",
@@ -290,14 +269,11 @@ pub fn synthesize(
     control.stage("meshmatch: hierarchy", 0)?;
     let (src_levels, tgt_owned) = build_levels(input, params, control)?;
     let tgt_levels = tgt_owned.as_ref().unwrap_or(&src_levels);
-    let hierarchy_ms = ms(start);
     drop(span);
 
-    let t_features = Instant::now();
     let span = control.span(0.08, 0.15);
     control.stage("meshmatch: features", 0)?;
     let shapes = shape_features(input, &src_levels, tgt_levels, params, control)?;
-    let features_ms = ms(t_features);
     drop(span);
 
     let normalization = Normalization::new(input, &src_levels, &shapes);
@@ -333,9 +309,6 @@ pub fn synthesize(
             features: shapes.kind,
             affinity: shapes.affinity,
             fidelity,
-            hierarchy_ms,
-            features_ms,
-            total_ms: ms(start),
         },
     })
 }
@@ -513,13 +486,12 @@ impl<'a> CoarseToFine<'a> {
         let mut nnf = Nnf::default();
         let mut colors: Vec<[f32; 3]> = Vec::new();
         for level in (0..self.levels).rev() {
-            let t_level = Instant::now();
             let level_start = 0.15 + 0.85 * cost_done / total_cost;
             cost_done += level_cost[level];
             let _level_span = self
                 .control
                 .span(level_start, 0.15 + 0.85 * cost_done / total_cost);
-            let out = self.level(level, nnf, t_level)?;
+            let out = self.level(level, nnf)?;
             nnf = out.nnf;
             colors = out.colors;
             if out.fidelity.is_some() {
@@ -537,17 +509,13 @@ impl<'a> CoarseToFine<'a> {
 
     /// One level: prepare, initialize or upsample the field from `coarser`, vote, iterate EM,
     /// and on the finest level reconstruct and measure.
-    fn level(
-        &self,
-        level: usize,
-        coarser: Nnf,
-        t_level: Instant,
-    ) -> Result<LevelOutput, MeshMatchError> {
+    fn level(&self, level: usize, coarser: Nnf) -> Result<LevelOutput, MeshMatchError> {
         let (params, levels) = (self.params, self.levels);
         self.control
             .set_prefix(&format!("meshmatch level {}/{levels}", levels - level));
         self.control.stage("prepare", 0)?;
         let lv = self.prepare(level)?;
+        self.control.stage("initial field and vote", 0)?;
         let mut nnf = self.initial_field(&lv, &coarser)?;
         if let Some(f) = lv.fixed {
             for (t, &is_fixed) in f.iter().enumerate() {
@@ -569,10 +537,12 @@ impl<'a> CoarseToFine<'a> {
         let mut colors = vote(&lv.stencil, &nnf, &patches, sigma, keep);
         let (iterations, converged) = self.iterate(&lv, &patches, sigma, &mut nnf, &mut colors)?;
         if level == 0 && params.nearest_neighbor_final {
+            self.control.stage("nearest-neighbour colours", 0)?;
             colors = nearest_neighbour_colors(&nnf, &lv.centers, keep);
         }
         let mut fidelity = None;
         if level == 0 && params.measure_fidelity {
+            self.control.stage("fidelity", 0)?;
             fidelity = Some(measure(
                 &FidelityInput {
                     source: self.src,
@@ -597,7 +567,6 @@ impl<'a> CoarseToFine<'a> {
             shape_weight: lv.weight,
             iterations,
             converged,
-            ms: ms(t_level),
         };
         Ok(LevelOutput {
             nnf,
@@ -757,7 +726,6 @@ impl<'a> CoarseToFine<'a> {
                 it + 1
             ));
             control.check()?;
-            let t_fans = Instant::now();
             let flat: Vec<f32> = colors.iter().flatten().copied().collect();
             let tgt_fans = lv.tgt_sampler.sample(
                 FieldRef {
@@ -766,8 +734,7 @@ impl<'a> CoarseToFine<'a> {
                 },
                 control,
             )?;
-            let fans_ms = ms(t_fans);
-            let t_e = Instant::now();
+            control.stage("E-step", 0)?;
             let step = EStep {
                 space: PatchSpace {
                     fan: lv.src_fans.shape(),
@@ -794,18 +761,12 @@ impl<'a> CoarseToFine<'a> {
             control.check()?;
             let searched = step.random_search(nnf);
             let energy = nnf.energy();
-            let e_step_ms = ms(t_e);
-            control.check()?;
-            let t_v = Instant::now();
+            control.stage("vote", 0)?;
             *colors = vote(&lv.stencil, nnf, patches, sigma, keep);
-            let vote_ms = ms(t_v);
             iterations.push(IterationReport {
                 energy,
                 propagated,
                 searched,
-                fans_ms,
-                e_step_ms,
-                vote_ms,
             });
             let changed = (propagated + searched) as f32 / nt.max(1) as f32;
             if it > 0 && changed < params.convergence {
