@@ -4,6 +4,8 @@
 
 use std::path::PathBuf;
 
+pub mod fuzz;
+pub mod mutate;
 pub mod planar_pattern;
 
 /// The small, freely licensed assets committed with the repository (`tests/data`, listed with

@@ -15,6 +15,7 @@ mod meshmatch_common;
 
 mod color_output;
 mod constraints_schema;
+mod fuzz_ingest;
 mod geodesic_fans;
 mod geometry_core;
 mod ingest_edge_cases;

@@ -9,6 +9,7 @@
 mod common;
 mod service_common;
 
+mod fuzz_multipart;
 mod http;
 mod http_errors;
 mod method_seam;
