@@ -17,4 +17,5 @@ mod openapi;
 mod recovery;
 mod robustness;
 mod runner;
+mod soak;
 mod store;
