@@ -43,6 +43,20 @@ pub struct ServeConfig {
     /// Seconds a client may stay silent while sending a request body. Default 30
     /// (env `RETEX_BODY_TIMEOUT_SECS`).
     pub body_timeout_secs: u64,
+    /// Seconds a client may take to send a request head: from the accept for a connection's
+    /// first request, from its first byte for later ones. Default 10
+    /// (env `RETEX_HEADER_TIMEOUT_SECS`).
+    pub header_timeout_secs: u64,
+    /// Seconds a kept-alive connection may sit idle between requests. Default 60
+    /// (env `RETEX_IDLE_TIMEOUT_SECS`).
+    pub idle_timeout_secs: u64,
+    /// Seconds a whole request body may take to arrive, however steadily it trickles.
+    /// Default 3600 (env `RETEX_UPLOAD_TIMEOUT_SECS`).
+    pub upload_timeout_secs: u64,
+    /// Most client connections at once; one beyond gets 503 `too-many-connections` and is
+    /// closed. Default 512, well under the usual limit of 1024 open files
+    /// (env `RETEX_MAX_CONNECTIONS`).
+    pub max_connections: usize,
     /// Seconds granted on SIGTERM/SIGINT to running jobs and open connections. Default 20
     /// (env `RETEX_SHUTDOWN_SECS`).
     pub shutdown_secs: u64,
@@ -84,6 +98,10 @@ impl Default for ServeConfig {
             prune_interval_secs: 600,
             idempotency_secs: 24 * 3600,
             body_timeout_secs: 30,
+            header_timeout_secs: 10,
+            idle_timeout_secs: 60,
+            upload_timeout_secs: 3600,
+            max_connections: 512,
             shutdown_secs: 20,
             progress_interval_ms: 250,
             max_body_bytes: 1 << 30,
@@ -198,6 +216,18 @@ impl ServeConfig {
         if let Some(v) = get("RETEX_BODY_TIMEOUT_SECS") {
             self.body_timeout_secs = parse("RETEX_BODY_TIMEOUT_SECS", &v)?;
         }
+        if let Some(v) = get("RETEX_HEADER_TIMEOUT_SECS") {
+            self.header_timeout_secs = parse("RETEX_HEADER_TIMEOUT_SECS", &v)?;
+        }
+        if let Some(v) = get("RETEX_IDLE_TIMEOUT_SECS") {
+            self.idle_timeout_secs = parse("RETEX_IDLE_TIMEOUT_SECS", &v)?;
+        }
+        if let Some(v) = get("RETEX_UPLOAD_TIMEOUT_SECS") {
+            self.upload_timeout_secs = parse("RETEX_UPLOAD_TIMEOUT_SECS", &v)?;
+        }
+        if let Some(v) = get("RETEX_MAX_CONNECTIONS") {
+            self.max_connections = parse("RETEX_MAX_CONNECTIONS", &v)?;
+        }
         if let Some(v) = get("RETEX_SHUTDOWN_SECS") {
             self.shutdown_secs = parse("RETEX_SHUTDOWN_SECS", &v)?;
         }
@@ -241,6 +271,19 @@ impl ServeConfig {
         }
         if self.max_part_bytes == 0 || self.max_body_bytes == 0 {
             return bad("max_body_bytes", "body and part limits must be positive");
+        }
+        for (field, secs) in [
+            ("body_timeout_secs", self.body_timeout_secs),
+            ("header_timeout_secs", self.header_timeout_secs),
+            ("idle_timeout_secs", self.idle_timeout_secs),
+            ("upload_timeout_secs", self.upload_timeout_secs),
+        ] {
+            if !(1..=30 * 24 * 3600).contains(&secs) {
+                return bad(field, "must be within 1..=2592000 seconds");
+            }
+        }
+        if !(1..=1_000_000).contains(&self.max_connections) {
+            return bad("max_connections", "must be within 1..=1000000");
         }
         if self.idempotency_secs < 24 * 3600 {
             return bad("idempotency_secs", "keys are kept at least 24 h (86400)");

@@ -9,6 +9,7 @@
 mod common;
 mod service_common;
 
+mod connections;
 mod http;
 mod http_errors;
 mod method_seam;

@@ -109,6 +109,15 @@ fn multipart_error(e: MultipartError, config: &ServeConfig) -> ApiError {
     if status == StatusCode::PAYLOAD_TOO_LARGE {
         return ApiError::too_large("body", "max_body_bytes", config.max_body_bytes);
     }
+    if let Some(secs) = super::deadline::upload_deadline_of(&e) {
+        return ApiError::new(
+            StatusCode::REQUEST_TIMEOUT,
+            "upload-timeout",
+            "Upload timeout",
+            format!("the request body was not received within {secs} s"),
+        )
+        .limit("upload_timeout_secs", secs);
+    }
     if is_timeout(&e) {
         return ApiError::new(
             StatusCode::REQUEST_TIMEOUT,
