@@ -10,6 +10,7 @@ mod common;
 mod service_common;
 
 mod connections;
+mod contract;
 mod http;
 mod http_errors;
 mod method_seam;

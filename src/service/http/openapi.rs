@@ -34,7 +34,7 @@ impl Modify for BearerAuth {
         ops::healthz, ops::readyz, metrics::metrics, openapi_json,
     ),
     components(schemas(
-        doc::JobDocument, doc::JobList, doc::JobLinks, doc::ArtifactLink, doc::ProgressDoc,
+        doc::JobDocument, doc::JobSummary, doc::JobList, doc::JobLinks, doc::ArtifactLink, doc::ProgressDoc,
         doc::StageCount, doc::JobEventDoc, doc::ProblemSchema, doc::JobStatusSchema, doc::SubmitForm,
     )),
     modifiers(&BearerAuth),

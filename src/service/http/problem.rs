@@ -20,6 +20,18 @@ use crate::service::store::StoreError;
 /// Media type of problem bodies.
 pub const PROBLEM_JSON: &str = "application/problem+json";
 
+/// Most characters of a client's value a problem repeats back (cursors, ids, names).
+pub const ECHO_CHARS: usize = 64;
+
+/// The first `max` characters of `s`, with `…` when it was longer: what a problem may repeat
+/// of a client's value without echoing an arbitrarily long input back.
+pub fn clip(s: &str, max: usize) -> String {
+    match s.char_indices().nth(max) {
+        Some((cut, _)) => format!("{}…", &s[..cut]),
+        None => s.to_string(),
+    }
+}
+
 /// An error answer of the API: a [`Problem`] plus optional extra headers.
 #[derive(Debug, Clone)]
 pub struct ApiError {
@@ -166,7 +178,10 @@ impl ApiError {
             StoreError::InvalidCursor(c) => Self::bad_request(
                 "invalid-cursor",
                 "next",
-                format!("cursor {c:?} was not issued by this server"),
+                format!(
+                    "cursor {:?} was not issued by this server (pass the `next` of the previous page unchanged)",
+                    clip(&c, ECHO_CHARS)
+                ),
             ),
             StoreError::QueueFull { limit } => Self::queue_full(limit),
             other => Self::internal(other),
@@ -228,6 +243,13 @@ mod tests {
         };
         let p = ApiError::ingest("source", &e).problem;
         assert_eq!(p.field.as_deref(), Some("source.buffers[0].uri"));
+    }
+
+    #[test]
+    fn clip_keeps_short_values_and_cuts_long_ones() {
+        assert_eq!(clip("abc", 5), "abc");
+        assert_eq!(clip("abcdef", 3), "abc…");
+        assert_eq!(clip("ééé", 2), "éé…");
     }
 
     #[test]

@@ -538,6 +538,17 @@ impl Runner {
             tracing::info!(%id, engine = how, "canceled job's engine call returned");
             return;
         }
+        // A job faster than the progress interval never stored its stage counts: store the
+        // final ones before finishing, so the document reports the stages that ran.
+        let last = to_job_progress(control.progress());
+        if last.stages_total != last_stored.stages_total && !matches!(outcome, Outcome::Canceled) {
+            let jobs = Arc::clone(&self.jobs);
+            match tokio::task::spawn_blocking(move || jobs.update_progress(id, &last)).await {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => tracing::warn!(%id, error = %e, "storing final progress failed"),
+                Err(e) => tracing::warn!(%id, error = %e, "storing final progress panicked"),
+            }
+        }
         let finish = match outcome {
             Outcome::Succeeded {
                 artifacts,
