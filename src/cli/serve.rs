@@ -56,6 +56,12 @@ pub struct ServeArgs {
     /// Most client connections at once [env RETEX_MAX_CONNECTIONS; default 512].
     #[arg(long)]
     pub max_connections: Option<usize>,
+    /// Free bytes below which /readyz is not ready [env RETEX_MIN_FREE_BYTES; default 512 MiB].
+    #[arg(long)]
+    pub min_free_bytes: Option<u64>,
+    /// Seconds claims pause after a storage failure [default 30].
+    #[arg(long)]
+    pub storage_retry_secs: Option<u64>,
     /// Seconds granted to jobs and connections on shutdown [env RETEX_SHUTDOWN_SECS; default 20].
     #[arg(long)]
     pub shutdown_secs: Option<u64>,
@@ -117,6 +123,8 @@ pub fn config(args: &ServeArgs) -> Result<(ServeConfig, String), String> {
         idle_timeout_secs,
         upload_timeout_secs,
         max_connections,
+        min_free_bytes,
+        storage_retry_secs,
         shutdown_secs,
         max_body_bytes,
         max_part_bytes,

@@ -57,6 +57,13 @@ pub struct ServeConfig {
     /// closed. Default 512, well under the usual limit of 1024 open files
     /// (env `RETEX_MAX_CONNECTIONS`).
     pub max_connections: usize,
+    /// Free bytes the data directory's file system must keep: below, `/readyz` answers 503
+    /// `low-disk-space`. Default 512 MiB (env `RETEX_MIN_FREE_BYTES`).
+    pub min_free_bytes: u64,
+    /// Seconds after a storage failure (a full disk, a failing database write) during which
+    /// no job is claimed and `/readyz` answers 503 `storage-failing`; a job whose outputs hit
+    /// a full disk goes back to the queue. Default 30.
+    pub storage_retry_secs: u64,
     /// Seconds granted on SIGTERM/SIGINT to running jobs and open connections. Default 20
     /// (env `RETEX_SHUTDOWN_SECS`).
     pub shutdown_secs: u64,
@@ -102,6 +109,8 @@ impl Default for ServeConfig {
             idle_timeout_secs: 60,
             upload_timeout_secs: 3600,
             max_connections: 512,
+            min_free_bytes: 512 << 20,
+            storage_retry_secs: 30,
             shutdown_secs: 20,
             progress_interval_ms: 250,
             max_body_bytes: 1 << 30,
@@ -228,6 +237,9 @@ impl ServeConfig {
         if let Some(v) = get("RETEX_MAX_CONNECTIONS") {
             self.max_connections = parse("RETEX_MAX_CONNECTIONS", &v)?;
         }
+        if let Some(v) = get("RETEX_MIN_FREE_BYTES") {
+            self.min_free_bytes = parse("RETEX_MIN_FREE_BYTES", &v)?;
+        }
         if let Some(v) = get("RETEX_SHUTDOWN_SECS") {
             self.shutdown_secs = parse("RETEX_SHUTDOWN_SECS", &v)?;
         }
@@ -277,6 +289,7 @@ impl ServeConfig {
             ("header_timeout_secs", self.header_timeout_secs),
             ("idle_timeout_secs", self.idle_timeout_secs),
             ("upload_timeout_secs", self.upload_timeout_secs),
+            ("storage_retry_secs", self.storage_retry_secs),
         ] {
             if !(1..=30 * 24 * 3600).contains(&secs) {
                 return bad(field, "must be within 1..=2592000 seconds");

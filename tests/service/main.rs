@@ -18,4 +18,5 @@ mod openapi;
 mod recovery;
 mod robustness;
 mod runner;
+mod storage_faults;
 mod store;

@@ -143,7 +143,8 @@ async fn queue_depth(state: &AppState) -> Result<u64, ApiError> {
         (status = 400, description = "Malformed multipart body", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 413, description = "A size limit was exceeded (named in `limit`)", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 422, description = "Invalid model or constraints, or Idempotency-Key reused", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
-        (status = 503, description = "Queue full; see Retry-After", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+        (status = 503, description = "Queue full or job database busy; see Retry-After", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+        (status = 507, description = "The server's storage is full (`insufficient-storage`); see Retry-After", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
     ))]
 pub async fn submit(State(state): State<AppState>, request: Request) -> Result<Response, ApiError> {
     let (parts, body) = request.into_parts();

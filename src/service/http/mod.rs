@@ -176,6 +176,19 @@ pub async fn start(config: ServeConfig) -> Result<Server, String> {
 
 /// As [`start`], with the methods of `registry` (tests register extra methods this way).
 pub async fn start_with(config: ServeConfig, registry: Registry) -> Result<Server, String> {
+    start_with_stores(config, registry, |jobs, blobs| (jobs, blobs)).await
+}
+
+/// The stores a server uses: the job store and the blob store.
+pub type Stores = (Arc<dyn JobStore>, Arc<dyn BlobStore>);
+
+/// As [`start_with`], with the opened stores passed through `wrap` first (tests inject storage
+/// faults, e.g. a full disk, with a wrapper).
+pub async fn start_with_stores(
+    config: ServeConfig,
+    registry: Registry,
+    wrap: impl FnOnce(Arc<dyn JobStore>, Arc<dyn BlobStore>) -> Stores,
+) -> Result<Server, String> {
     config.validate().map_err(|e| e.to_string())?;
     std::fs::create_dir_all(&config.data_dir)
         .map_err(|e| format!("data dir {}: {e}", config.data_dir.display()))?;
@@ -183,6 +196,7 @@ pub async fn start_with(config: ServeConfig, registry: Registry) -> Result<Serve
         Arc::new(SqliteJobStore::open(&config.db_path()).map_err(|e| e.to_string())?);
     let blobs: Arc<dyn BlobStore> =
         Arc::new(FsBlobStore::open(&config.blob_dir()).map_err(|e| e.to_string())?);
+    let (jobs, blobs) = wrap(jobs, blobs);
     let runner = Runner::start(
         RunnerConfig {
             workers: config.workers,
@@ -191,6 +205,7 @@ pub async fn start_with(config: ServeConfig, registry: Registry) -> Result<Serve
             max_texture_size: config.max_texture_size,
             progress_interval: Duration::from_millis(config.progress_interval_ms),
             registry: registry.clone(),
+            storage_retry: Duration::from_secs(config.storage_retry_secs),
         },
         jobs.clone(),
         blobs.clone(),
