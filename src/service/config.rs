@@ -30,6 +30,8 @@ pub struct ServeConfig {
     /// Times a job may be started (crash recovery re-runs count). Default 3.
     pub max_attempts: u32,
     /// Bearer tokens; empty means no authentication (env `RETEX_TOKENS`, comma separated).
+    /// A `read:`, `submit:` or `admin:` prefix names the token's scope (the prefix is not part
+    /// of the token the client sends); a token without one is an admin token.
     pub tokens: Vec<String>,
     /// Origins allowed by CORS, e.g. `https://dashboard.example`; empty allows none
     /// (env `RETEX_CORS_ORIGINS`, comma separated; `*` allows any).
@@ -304,7 +306,11 @@ impl ServeConfig {
         if self.prune_interval_secs == 0 || self.progress_interval_ms == 0 {
             return bad("prune_interval_secs", "intervals must be positive");
         }
-        if self.tokens.iter().any(|t| t.len() < 8) {
+        if self
+            .tokens
+            .iter()
+            .any(|t| crate::service::http::auth::scoped(t).1.len() < 8)
+        {
             return bad("tokens", "each token needs at least 8 characters");
         }
         if self.tokens_blank && self.tokens.is_empty() && !self.addr.ip().is_loopback() {

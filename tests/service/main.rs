@@ -18,5 +18,6 @@ mod openapi;
 mod recovery;
 mod robustness;
 mod runner;
+mod scopes;
 mod storage_faults;
 mod store;
