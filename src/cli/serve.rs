@@ -44,6 +44,24 @@ pub struct ServeArgs {
     /// Seconds a client may stay silent while uploading [env RETEX_BODY_TIMEOUT_SECS; default 30].
     #[arg(long)]
     pub body_timeout_secs: Option<u64>,
+    /// Seconds a client may take to send a request head [env RETEX_HEADER_TIMEOUT_SECS; default 10].
+    #[arg(long)]
+    pub header_timeout_secs: Option<u64>,
+    /// Seconds a kept-alive connection may sit idle [env RETEX_IDLE_TIMEOUT_SECS; default 60].
+    #[arg(long)]
+    pub idle_timeout_secs: Option<u64>,
+    /// Seconds a whole request body may take [env RETEX_UPLOAD_TIMEOUT_SECS; default 3600].
+    #[arg(long)]
+    pub upload_timeout_secs: Option<u64>,
+    /// Most client connections at once [env RETEX_MAX_CONNECTIONS; default 512].
+    #[arg(long)]
+    pub max_connections: Option<usize>,
+    /// Free bytes below which /readyz is not ready [env RETEX_MIN_FREE_BYTES; default 512 MiB].
+    #[arg(long)]
+    pub min_free_bytes: Option<u64>,
+    /// Seconds claims pause after a storage failure [default 30].
+    #[arg(long)]
+    pub storage_retry_secs: Option<u64>,
     /// Seconds granted to jobs and connections on shutdown [env RETEX_SHUTDOWN_SECS; default 20].
     #[arg(long)]
     pub shutdown_secs: Option<u64>,
@@ -101,6 +119,12 @@ pub fn config(args: &ServeArgs) -> Result<(ServeConfig, String), String> {
     );
     flag!(
         body_timeout_secs,
+        header_timeout_secs,
+        idle_timeout_secs,
+        upload_timeout_secs,
+        max_connections,
+        min_free_bytes,
+        storage_retry_secs,
         shutdown_secs,
         max_body_bytes,
         max_part_bytes,

@@ -30,6 +30,8 @@ pub struct ServeConfig {
     /// Times a job may be started (crash recovery re-runs count). Default 3.
     pub max_attempts: u32,
     /// Bearer tokens; empty means no authentication (env `RETEX_TOKENS`, comma separated).
+    /// A `read:`, `submit:` or `admin:` prefix names the token's scope (the prefix is not part
+    /// of the token the client sends); a token without one is an admin token.
     pub tokens: Vec<String>,
     /// Origins allowed by CORS, e.g. `https://dashboard.example`; empty allows none
     /// (env `RETEX_CORS_ORIGINS`, comma separated; `*` allows any).
@@ -43,6 +45,27 @@ pub struct ServeConfig {
     /// Seconds a client may stay silent while sending a request body. Default 30
     /// (env `RETEX_BODY_TIMEOUT_SECS`).
     pub body_timeout_secs: u64,
+    /// Seconds a client may take to send a request head: from the accept for a connection's
+    /// first request, from its first byte for later ones. Default 10
+    /// (env `RETEX_HEADER_TIMEOUT_SECS`).
+    pub header_timeout_secs: u64,
+    /// Seconds a kept-alive connection may sit idle between requests. Default 60
+    /// (env `RETEX_IDLE_TIMEOUT_SECS`).
+    pub idle_timeout_secs: u64,
+    /// Seconds a whole request body may take to arrive, however steadily it trickles.
+    /// Default 3600 (env `RETEX_UPLOAD_TIMEOUT_SECS`).
+    pub upload_timeout_secs: u64,
+    /// Most client connections at once; one beyond gets 503 `too-many-connections` and is
+    /// closed. Default 512, well under the usual limit of 1024 open files
+    /// (env `RETEX_MAX_CONNECTIONS`).
+    pub max_connections: usize,
+    /// Free bytes the data directory's file system must keep: below, `/readyz` answers 503
+    /// `low-disk-space`. Default 512 MiB (env `RETEX_MIN_FREE_BYTES`).
+    pub min_free_bytes: u64,
+    /// Seconds after a storage failure (a full disk, a failing database write) during which
+    /// no job is claimed and `/readyz` answers 503 `storage-failing`; a job whose outputs hit
+    /// a full disk goes back to the queue. Default 30.
+    pub storage_retry_secs: u64,
     /// Seconds granted on SIGTERM/SIGINT to running jobs and open connections. Default 20
     /// (env `RETEX_SHUTDOWN_SECS`).
     pub shutdown_secs: u64,
@@ -84,6 +107,12 @@ impl Default for ServeConfig {
             prune_interval_secs: 600,
             idempotency_secs: 24 * 3600,
             body_timeout_secs: 30,
+            header_timeout_secs: 10,
+            idle_timeout_secs: 60,
+            upload_timeout_secs: 3600,
+            max_connections: 512,
+            min_free_bytes: 512 << 20,
+            storage_retry_secs: 30,
             shutdown_secs: 20,
             progress_interval_ms: 250,
             max_body_bytes: 1 << 30,
@@ -198,6 +227,21 @@ impl ServeConfig {
         if let Some(v) = get("RETEX_BODY_TIMEOUT_SECS") {
             self.body_timeout_secs = parse("RETEX_BODY_TIMEOUT_SECS", &v)?;
         }
+        if let Some(v) = get("RETEX_HEADER_TIMEOUT_SECS") {
+            self.header_timeout_secs = parse("RETEX_HEADER_TIMEOUT_SECS", &v)?;
+        }
+        if let Some(v) = get("RETEX_IDLE_TIMEOUT_SECS") {
+            self.idle_timeout_secs = parse("RETEX_IDLE_TIMEOUT_SECS", &v)?;
+        }
+        if let Some(v) = get("RETEX_UPLOAD_TIMEOUT_SECS") {
+            self.upload_timeout_secs = parse("RETEX_UPLOAD_TIMEOUT_SECS", &v)?;
+        }
+        if let Some(v) = get("RETEX_MAX_CONNECTIONS") {
+            self.max_connections = parse("RETEX_MAX_CONNECTIONS", &v)?;
+        }
+        if let Some(v) = get("RETEX_MIN_FREE_BYTES") {
+            self.min_free_bytes = parse("RETEX_MIN_FREE_BYTES", &v)?;
+        }
         if let Some(v) = get("RETEX_SHUTDOWN_SECS") {
             self.shutdown_secs = parse("RETEX_SHUTDOWN_SECS", &v)?;
         }
@@ -242,13 +286,31 @@ impl ServeConfig {
         if self.max_part_bytes == 0 || self.max_body_bytes == 0 {
             return bad("max_body_bytes", "body and part limits must be positive");
         }
+        for (field, secs) in [
+            ("body_timeout_secs", self.body_timeout_secs),
+            ("header_timeout_secs", self.header_timeout_secs),
+            ("idle_timeout_secs", self.idle_timeout_secs),
+            ("upload_timeout_secs", self.upload_timeout_secs),
+            ("storage_retry_secs", self.storage_retry_secs),
+        ] {
+            if !(1..=30 * 24 * 3600).contains(&secs) {
+                return bad(field, "must be within 1..=2592000 seconds");
+            }
+        }
+        if !(1..=1_000_000).contains(&self.max_connections) {
+            return bad("max_connections", "must be within 1..=1000000");
+        }
         if self.idempotency_secs < 24 * 3600 {
             return bad("idempotency_secs", "keys are kept at least 24 h (86400)");
         }
         if self.prune_interval_secs == 0 || self.progress_interval_ms == 0 {
             return bad("prune_interval_secs", "intervals must be positive");
         }
-        if self.tokens.iter().any(|t| t.len() < 8) {
+        if self
+            .tokens
+            .iter()
+            .any(|t| crate::service::http::auth::scoped(t).1.len() < 8)
+        {
             return bad("tokens", "each token needs at least 8 characters");
         }
         if self.tokens_blank && self.tokens.is_empty() && !self.addr.ip().is_loopback() {

@@ -9,6 +9,8 @@
 mod common;
 mod service_common;
 
+mod connections;
+mod contract;
 mod fuzz_multipart;
 mod http;
 mod http_errors;
@@ -17,5 +19,7 @@ mod openapi;
 mod recovery;
 mod robustness;
 mod runner;
+mod scopes;
 mod soak;
+mod storage_faults;
 mod store;

@@ -243,6 +243,32 @@ impl TestServer {
         registry: retex::engine::methods::Registry,
         edit: impl FnOnce(&mut ServeConfig),
     ) -> TestServer {
+        Self::start_full(registry, edit, |jobs, blobs| (jobs, blobs))
+    }
+
+    /// A server whose stores are passed through `wrap` (to inject storage faults).
+    pub fn start_wrapped(
+        edit: impl FnOnce(&mut ServeConfig),
+        wrap: impl FnOnce(
+                std::sync::Arc<dyn retex::service::store::JobStore>,
+                std::sync::Arc<dyn retex::service::store::BlobStore>,
+            ) -> http::Stores
+            + Send
+            + 'static,
+    ) -> TestServer {
+        Self::start_full(retex::engine::methods::Registry::builtin(), edit, wrap)
+    }
+
+    fn start_full(
+        registry: retex::engine::methods::Registry,
+        edit: impl FnOnce(&mut ServeConfig),
+        wrap: impl FnOnce(
+                std::sync::Arc<dyn retex::service::store::JobStore>,
+                std::sync::Arc<dyn retex::service::store::BlobStore>,
+            ) -> http::Stores
+            + Send
+            + 'static,
+    ) -> TestServer {
         let data = tempfile::tempdir().unwrap();
         let mut config = test_config(data.path());
         edit(&mut config);
@@ -255,7 +281,7 @@ impl TestServer {
                 .build()
                 .unwrap();
             rt.block_on(async move {
-                let server = http::start_with(config, registry)
+                let server = http::start_with_stores(config, registry, wrap)
                     .await
                     .expect("server starts");
                 tx.send((server.addr, server.state.clone())).unwrap();

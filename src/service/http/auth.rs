@@ -2,7 +2,13 @@
 //!
 //! With tokens configured, every route but `/healthz` and `/readyz` (probes) needs
 //! `Authorization: Bearer <token>`. Tokens are compared in constant time ([`subtle`]) against
-//! every configured token, so neither the match nor its position leaks through timing. CORS
+//! every configured token, so neither the match nor its position leaks through timing.
+//!
+//! A configured token may name its scope as a prefix: `read:<token>` may only read (GET),
+//! `submit:<token>` may also submit and cancel jobs (POST), `admin:<token>` or a token without
+//! a prefix may do everything, including deleting jobs. A token short of the scope a request
+//! needs gets 403 `insufficient-scope` (RFC 6750 §3.1), so a read-only dashboard or a
+//! submitting client cannot delete other clients' jobs. CORS
 //! preflights are answered by the CORS layer, outside authentication, and expose `Location`,
 //! `ETag` and `Retry-After` to the dashboard.
 
@@ -12,7 +18,7 @@ use axum::extract::{Request, State};
 use axum::http::{header, HeaderName, HeaderValue, Method, StatusCode};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
-use subtle::ConstantTimeEq;
+use subtle::{ConditionallySelectable, ConstantTimeEq};
 use tower_http::cors::{AllowOrigin, CorsLayer};
 
 use super::problem::ApiError;
@@ -21,15 +27,72 @@ use super::AppState;
 /// Paths reachable without a token.
 const OPEN_PATHS: [&str; 2] = ["/healthz", "/readyz"];
 
-/// Whether `given` equals one of `tokens`, in time independent of where they differ.
-pub fn token_matches(tokens: &[String], given: &[u8]) -> bool {
-    let mut ok = subtle::Choice::from(0u8);
+/// What a token may do; each scope includes the ones before it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+#[repr(u8)]
+pub enum Scope {
+    /// Read jobs, results, events, metrics and the OpenAPI document (GET).
+    Read = 1,
+    /// Also submit and cancel jobs (POST).
+    Submit = 2,
+    /// Also delete jobs (DELETE).
+    Admin = 3,
+}
+
+impl Scope {
+    fn name(self) -> &'static str {
+        match self {
+            Scope::Read => "read",
+            Scope::Submit => "submit",
+            Scope::Admin => "admin",
+        }
+    }
+
+    /// The scope a request needs, by its method.
+    pub fn needed(method: &Method) -> Scope {
+        if *method == Method::GET || *method == Method::HEAD {
+            Scope::Read
+        } else if *method == Method::POST {
+            Scope::Submit
+        } else {
+            Scope::Admin
+        }
+    }
+}
+
+/// Splits a configured token into its scope and the secret: `read:`, `submit:` and `admin:`
+/// prefixes name the scope; any other token is an admin token.
+pub fn scoped(token: &str) -> (Scope, &str) {
+    for scope in [Scope::Read, Scope::Submit, Scope::Admin] {
+        if let Some(secret) = token
+            .strip_prefix(scope.name())
+            .and_then(|t| t.strip_prefix(':'))
+        {
+            return (scope, secret);
+        }
+    }
+    (Scope::Admin, token)
+}
+
+/// The scope of the configured token equal to `given`, if any, in time independent of where
+/// they differ.
+pub fn token_scope(tokens: &[String], given: &[u8]) -> Option<Scope> {
+    let mut found = 0u8;
     for t in tokens {
+        let (scope, secret) = scoped(t);
         // ct_eq on slices of different lengths is false without comparing contents; the
         // length of a token is not secret enough to pad for.
-        ok |= t.as_bytes().ct_eq(given);
+        let eq = secret.as_bytes().ct_eq(given);
+        found = u8::conditional_select(&found, &(scope as u8), eq);
     }
-    ok.into()
+    [Scope::Read, Scope::Submit, Scope::Admin]
+        .into_iter()
+        .find(|s| *s as u8 == found)
+}
+
+/// Whether `given` equals one of `tokens` (whatever its scope).
+pub fn token_matches(tokens: &[String], given: &[u8]) -> bool {
+    token_scope(tokens, given).is_some()
 }
 
 /// Middleware: refuses requests without a valid bearer token (when tokens are configured).
@@ -48,9 +111,34 @@ pub async fn require_token(State(state): State<AppState>, req: Request, next: Ne
             let (scheme, token) = v.trim().split_once(' ')?;
             scheme.eq_ignore_ascii_case("bearer").then(|| token.trim())
         });
-    match given {
-        Some(t) if token_matches(&state.config.tokens, t.as_bytes()) => next.run(req).await,
-        _ => {
+    let needed = Scope::needed(req.method());
+    match given.and_then(|t| token_scope(&state.config.tokens, t.as_bytes())) {
+        Some(scope) if scope >= needed => next.run(req).await,
+        Some(scope) => {
+            let mut resp = ApiError::new(
+                StatusCode::FORBIDDEN,
+                "insufficient-scope",
+                "Insufficient scope",
+                format!(
+                    "this token's scope is {}; {} {} needs {}",
+                    scope.name(),
+                    req.method(),
+                    req.uri().path(),
+                    needed.name()
+                ),
+            )
+            .field("Authorization")
+            .into_response();
+            let challenge = format!(
+                "Bearer realm=\"retex\", error=\"insufficient_scope\", scope=\"{}\"",
+                needed.name()
+            );
+            if let Ok(v) = HeaderValue::from_str(&challenge) {
+                resp.headers_mut().insert(header::WWW_AUTHENTICATE, v);
+            }
+            resp
+        }
+        None => {
             let mut resp = ApiError::new(
                 StatusCode::UNAUTHORIZED,
                 "unauthorized",
@@ -86,6 +174,7 @@ pub fn cors(origins: &[String]) -> CorsLayer {
             header::AUTHORIZATION,
             header::CONTENT_TYPE,
             header::IF_NONE_MATCH,
+            header::IF_RANGE,
             header::RANGE,
             HeaderName::from_static("idempotency-key"),
             HeaderName::from_static("last-event-id"),
@@ -112,5 +201,18 @@ mod tests {
         assert!(!token_matches(&tokens, b"secret-twoo"));
         assert!(!token_matches(&tokens, b""));
         assert!(!token_matches(&[], b"x"));
+    }
+
+    #[test]
+    fn scopes_come_from_prefixes() {
+        use super::{scoped, token_scope, Scope};
+        assert_eq!(scoped("read:abcdefgh"), (Scope::Read, "abcdefgh"));
+        assert_eq!(scoped("submit:abcdefgh"), (Scope::Submit, "abcdefgh"));
+        assert_eq!(scoped("admin:abcdefgh"), (Scope::Admin, "abcdefgh"));
+        assert_eq!(scoped("reader:abcdefgh"), (Scope::Admin, "reader:abcdefgh"));
+        let tokens = vec!["read:r-secret".to_string(), "a-secret".to_string()];
+        assert_eq!(token_scope(&tokens, b"r-secret"), Some(Scope::Read));
+        assert_eq!(token_scope(&tokens, b"a-secret"), Some(Scope::Admin));
+        assert_eq!(token_scope(&tokens, b"read:r-secret"), None);
     }
 }

@@ -134,30 +134,11 @@ pub struct JobDocument {
 impl JobDocument {
     /// The document of a stored job.
     pub fn from_record(r: &JobRecord) -> Self {
-        let base = format!("/v1/jobs/{}", r.id);
-        let artifacts = r
-            .artifacts
-            .iter()
-            .map(|a| ArtifactLink {
-                name: a.name.clone(),
-                href: format!("{base}/artifacts/{}", a.name),
-                media_type: a.media_type.clone(),
-                size: a.size,
-                sha256: a.sha256.clone(),
-            })
-            .collect();
         Self {
             id: r.id,
             status: r.status,
             method: r.method.clone(),
-            progress: ProgressDoc {
-                stage: r.progress.stage.clone(),
-                fraction: r.progress.fraction.clamp(0.0, 1.0),
-                stages: StageCount {
-                    done: r.progress.stages_done,
-                    total: r.progress.stages_total,
-                },
-            },
+            progress: progress_doc(r),
             created_at: r.created_at,
             started_at: r.started_at,
             finished_at: r.finished_at,
@@ -165,12 +146,88 @@ impl JobDocument {
             report: r.report.clone(),
             attempts: r.attempts,
             revision: r.revision,
-            links: JobLinks {
-                self_: base.clone(),
-                result: format!("{base}/result"),
-                events: format!("{base}/events"),
-                artifacts,
-            },
+            links: links(r),
+        }
+    }
+}
+
+fn progress_doc(r: &JobRecord) -> ProgressDoc {
+    ProgressDoc {
+        stage: r.progress.stage.clone(),
+        fraction: r.progress.fraction.clamp(0.0, 1.0),
+        stages: StageCount {
+            done: r.progress.stages_done,
+            total: r.progress.stages_total,
+        },
+    }
+}
+
+fn links(r: &JobRecord) -> JobLinks {
+    let base = format!("/v1/jobs/{}", r.id);
+    let artifacts = r
+        .artifacts
+        .iter()
+        .map(|a| ArtifactLink {
+            name: a.name.clone(),
+            href: format!("{base}/artifacts/{}", a.name),
+            media_type: a.media_type.clone(),
+            size: a.size,
+            sha256: a.sha256.clone(),
+        })
+        .collect();
+    JobLinks {
+        result: format!("{base}/result"),
+        events: format!("{base}/events"),
+        self_: base,
+        artifacts,
+    }
+}
+
+/// A job in a list: the job document without its `report` (which can run to kilobytes per
+/// job); `GET /v1/jobs/{id}` has the full document.
+#[derive(Clone, Debug, Serialize, ToSchema)]
+pub struct JobSummary {
+    /// Job id.
+    pub id: Uuid,
+    /// Status.
+    #[schema(value_type = JobStatusSchema)]
+    pub status: JobStatus,
+    /// Method id (`project`, ...).
+    pub method: String,
+    /// Progress.
+    pub progress: ProgressDoc,
+    /// When the job was accepted.
+    pub created_at: DateTime<Utc>,
+    /// When a worker last started it.
+    pub started_at: Option<DateTime<Utc>>,
+    /// When it reached a terminal state.
+    pub finished_at: Option<DateTime<Utc>>,
+    /// Why it failed.
+    #[schema(value_type = Option<ProblemSchema>)]
+    pub error: Option<Problem>,
+    /// Times a worker started it.
+    pub attempts: u32,
+    /// Revision (the ETag of its document).
+    pub revision: u64,
+    /// Related resources.
+    pub links: JobLinks,
+}
+
+impl JobSummary {
+    /// The summary of a stored job.
+    pub fn from_record(r: &JobRecord) -> Self {
+        Self {
+            id: r.id,
+            status: r.status,
+            method: r.method.clone(),
+            progress: progress_doc(r),
+            created_at: r.created_at,
+            started_at: r.started_at,
+            finished_at: r.finished_at,
+            error: r.error.clone(),
+            attempts: r.attempts,
+            revision: r.revision,
+            links: links(r),
         }
     }
 }
@@ -178,8 +235,8 @@ impl JobDocument {
 /// A page of `GET /v1/jobs`.
 #[derive(Clone, Debug, Serialize, ToSchema)]
 pub struct JobList {
-    /// Jobs, newest first.
-    pub jobs: Vec<JobDocument>,
+    /// Jobs, newest first, summarised (no `report`).
+    pub jobs: Vec<JobSummary>,
     /// Opaque cursor of the next page; pass it as `next`.
     pub next: Option<String>,
 }

@@ -10,7 +10,7 @@
 use std::convert::Infallible;
 use std::time::Duration;
 
-use axum::extract::{Path, State};
+use axum::extract::State;
 use axum::http::HeaderMap;
 use axum::response::sse::{Event, KeepAlive, Sse};
 use futures_util::stream::{self, Stream};
@@ -18,6 +18,7 @@ use tokio::sync::broadcast::error::RecvError;
 use uuid::Uuid;
 
 use super::doc::{JobEventDoc, ProgressDoc, StageCount};
+use super::jobs::JobId;
 use super::problem::ApiError;
 use super::{blocking, AppState};
 use crate::service::jobs::runner::JobEvent;
@@ -128,11 +129,12 @@ impl Cursor {
     responses(
         (status = 200, description = "`text/event-stream`: `progress` events, then one `done` event; data is a JobEventDoc",
          content_type = "text/event-stream", body = JobEventDoc),
+        (status = 400, description = "Malformed job id (not a UUID)", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 404, description = "Unknown job", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
     ))]
 pub async fn events(
     State(state): State<AppState>,
-    Path(id): Path<Uuid>,
+    JobId(id): JobId,
     headers: HeaderMap,
 ) -> Result<Sse<impl Stream<Item = Result<Event, Infallible>>>, ApiError> {
     let last = headers

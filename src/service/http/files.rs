@@ -11,7 +11,7 @@ use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use uuid::Uuid;
 
-use super::jobs::if_none_match;
+use super::jobs::{if_none_match, JobId};
 use super::problem::ApiError;
 use super::{blocking, AppState};
 use crate::service::model::{ArtifactRef, JobStatus};
@@ -184,13 +184,14 @@ async fn finished_job(
         (status = 200, description = "The output model; strong ETag (SHA-256)", content_type = "model/gltf-binary", body = Vec<u8>),
         (status = 206, description = "The requested byte range", content_type = "model/gltf-binary", body = Vec<u8>),
         (status = 304, description = "Unchanged"),
+        (status = 400, description = "Malformed job id (not a UUID)", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 404, description = "Unknown job", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 409, description = "The job has not succeeded", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 416, description = "Range not satisfiable", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
     ))]
 pub async fn result(
     State(state): State<AppState>,
-    Path(id): Path<Uuid>,
+    JobId(id): JobId,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     let record = finished_job(&state, id).await?;
@@ -214,12 +215,14 @@ pub async fn result(
         (status = 200, description = "The artifact; strong ETag (SHA-256)", body = Vec<u8>),
         (status = 206, description = "The requested byte range", body = Vec<u8>),
         (status = 304, description = "Unchanged"),
+        (status = 400, description = "Malformed job id (not a UUID)", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 404, description = "Unknown job or artifact", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 409, description = "The job has not succeeded", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
     ))]
 pub async fn artifact(
     State(state): State<AppState>,
-    Path((id, name)): Path<(Uuid, String)>,
+    JobId(id): JobId,
+    Path((_, name)): Path<(String, String)>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     let record = finished_job(&state, id).await?;
@@ -233,7 +236,10 @@ pub async fn artifact(
                 StatusCode::NOT_FOUND,
                 "artifact-not-found",
                 "Artifact not found",
-                format!("job {id} has no artifact {name:?}"),
+                format!(
+                    "job {id} has no artifact {:?}",
+                    super::problem::clip(&name, super::problem::ECHO_CHARS)
+                ),
             )
             .field("name")
         })?;

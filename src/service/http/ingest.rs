@@ -109,6 +109,15 @@ fn multipart_error(e: MultipartError, config: &ServeConfig) -> ApiError {
     if status == StatusCode::PAYLOAD_TOO_LARGE {
         return ApiError::too_large("body", "max_body_bytes", config.max_body_bytes);
     }
+    if let Some(secs) = super::deadline::upload_deadline_of(&e) {
+        return ApiError::new(
+            StatusCode::REQUEST_TIMEOUT,
+            "upload-timeout",
+            "Upload timeout",
+            format!("the request body was not received within {secs} s"),
+        )
+        .limit("upload_timeout_secs", secs);
+    }
     if is_timeout(&e) {
         return ApiError::new(
             StatusCode::REQUEST_TIMEOUT,
@@ -167,7 +176,7 @@ async fn save_part(
     cap: u64,
     config: &ServeConfig,
 ) -> Result<(u64, [u8; 32]), ApiError> {
-    let mut file = std::fs::File::create(path).map_err(ApiError::internal)?;
+    let mut file = std::fs::File::create(path).map_err(ApiError::io)?;
     let mut hasher = Sha256::new();
     let mut len = 0u64;
     while let Some(chunk) = field
@@ -187,7 +196,7 @@ async fn save_part(
         hasher.update(&chunk);
         // Small synchronous writes into the page cache; the fsync happens when the blob store
         // takes the file.
-        file.write_all(&chunk).map_err(ApiError::internal)?;
+        file.write_all(&chunk).map_err(ApiError::io)?;
     }
     Ok((len, hasher.finalize().into()))
 }
@@ -233,12 +242,12 @@ pub async fn read_upload(
     registry: &Registry,
     temp_root: &Path,
 ) -> Result<Upload, ApiError> {
-    std::fs::create_dir_all(temp_root).map_err(ApiError::internal)?;
+    std::fs::create_dir_all(temp_root).map_err(ApiError::io)?;
     let temp = std::sync::Arc::new(TempFiles::new(temp_root));
     let mut request = Sha256::new();
     let received = receive_parts(multipart, config, &temp, &mut request).await?;
     let constraints_bytes = match &received.constraints {
-        Some(path) => std::fs::read(path).map_err(ApiError::internal)?,
+        Some(path) => std::fs::read(path).map_err(ApiError::io)?,
         None => DEFAULT_CONSTRAINTS.to_vec(),
     };
     let parsed =
@@ -493,7 +502,7 @@ fn unzip(
         )
         .field(side)
     };
-    let reader = std::fs::File::open(&zip_file.path).map_err(ApiError::internal)?;
+    let reader = std::fs::File::open(&zip_file.path).map_err(ApiError::io)?;
     let mut archive = zip::ZipArchive::new(reader).map_err(|e| bad(format!("{side}: {e}")))?;
     if archive.len() > config.max_files {
         return Err(ApiError::new(
@@ -528,7 +537,7 @@ fn unzip(
         let name = rel.to_string_lossy().replace('\\', "/");
         check_name(side, &name)?;
         let path = temp.path(&format!("{side}-zip-{i}"));
-        let mut file = std::fs::File::create(&path).map_err(ApiError::internal)?;
+        let mut file = std::fs::File::create(&path).map_err(ApiError::io)?;
         // Never trust the declared size: copy at most cap + 1 bytes.
         let copied = std::io::copy(&mut (&mut entry).take(config.max_part_bytes + 1), &mut file)
             .map_err(|e| bad(format!("{side}: {name}: {e}")))?;
@@ -557,7 +566,7 @@ fn unzip(
 fn validate_model(side: &str, model: &UploadModel, config: &ServeConfig) -> Result<(), ApiError> {
     let mut blobs = BlobSet::new();
     for f in &model.files {
-        let bytes = std::fs::read(&f.path).map_err(ApiError::internal)?;
+        let bytes = std::fs::read(&f.path).map_err(ApiError::io)?;
         blobs.insert(f.name.clone(), bytes);
     }
     // Structure, ranges and image headers are checked here; pixels are decoded by the job.

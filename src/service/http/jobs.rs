@@ -7,7 +7,10 @@
 
 use std::collections::HashSet;
 
-use axum::extract::{FromRequest, Multipart, Path, Query, Request, State};
+use axum::extract::{
+    FromRequest, FromRequestParts, Multipart, Query, RawPathParams, Request, State,
+};
+use axum::http::request::Parts;
 use axum::http::{header, HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
@@ -16,10 +19,10 @@ use serde::Deserialize;
 use utoipa::IntoParams;
 use uuid::Uuid;
 
-use super::doc::{JobDocument, JobList};
+use super::doc::{JobDocument, JobList, JobSummary};
 use super::ingest::{read_upload, safe_key_name, UploadModel};
 use super::linger::{content_length, SharedBody};
-use super::problem::ApiError;
+use super::problem::{clip, ApiError, ECHO_CHARS};
 use super::{blocking, AppState};
 use crate::service::model::{JobInputs, JobProgress, JobRecord, JobStatus, ModelFiles};
 use crate::service::store::{BlobStore, CreateOutcome, ListFilter, StoreError};
@@ -62,6 +65,32 @@ pub fn if_none_match(headers: &HeaderMap, tag: &str) -> bool {
         .flat_map(|v| v.split(','))
         .map(str::trim)
         .any(|t| t == "*" || t.trim_start_matches("W/") == want)
+}
+
+/// The `{id}` of a job route; a malformed one is a 400 problem (`invalid-job-id`, field `id`)
+/// rather than axum's plain-text path rejection.
+pub struct JobId(pub Uuid);
+
+impl<S: Send + Sync> FromRequestParts<S> for JobId {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, ApiError> {
+        let params = RawPathParams::from_request_parts(parts, state)
+            .await
+            .map_err(|e| ApiError::internal(e.body_text()))?;
+        let raw = params
+            .iter()
+            .find(|(name, _)| *name == "id")
+            .map(|(_, v)| v)
+            .ok_or_else(|| ApiError::internal("a job route without an {id} parameter"))?;
+        Uuid::parse_str(raw).map(JobId).map_err(|_| {
+            ApiError::bad_request(
+                "invalid-job-id",
+                "id",
+                format!("{:?} is not a job id (a UUID)", clip(raw, ECHO_CHARS)),
+            )
+        })
+    }
 }
 
 async fn load_job(state: &AppState, id: Uuid) -> Result<JobRecord, ApiError> {
@@ -114,7 +143,8 @@ async fn queue_depth(state: &AppState) -> Result<u64, ApiError> {
         (status = 400, description = "Malformed multipart body", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 413, description = "A size limit was exceeded (named in `limit`)", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 422, description = "Invalid model or constraints, or Idempotency-Key reused", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
-        (status = 503, description = "Queue full; see Retry-After", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+        (status = 503, description = "Queue full or job database busy; see Retry-After", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+        (status = 507, description = "The server's storage is full (`insufficient-storage`); see Retry-After", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
     ))]
 pub async fn submit(State(state): State<AppState>, request: Request) -> Result<Response, ApiError> {
     let (parts, body) = request.into_parts();
@@ -281,11 +311,12 @@ async fn submit_multipart(
     responses(
         (status = 200, description = "The job document; `ETag` is its revision", body = JobDocument),
         (status = 304, description = "Unchanged since the given ETag"),
+        (status = 400, description = "Malformed job id (not a UUID)", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 404, description = "Unknown job", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
     ))]
 pub async fn get_job(
     State(state): State<AppState>,
-    Path(id): Path<Uuid>,
+    JobId(id): JobId,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     let record = load_job(&state, id).await?;
@@ -361,7 +392,7 @@ pub async fn list_jobs(
     let jobs = state.jobs.clone();
     let page = blocking(move || jobs.list(&filter)).await?;
     Ok(Json(JobList {
-        jobs: page.jobs.iter().map(JobDocument::from_record).collect(),
+        jobs: page.jobs.iter().map(JobSummary::from_record).collect(),
         next: page.next,
     }))
 }
@@ -372,12 +403,13 @@ pub async fn list_jobs(
     responses(
         (status = 200, description = "The job was enqueued and is now canceled", body = JobDocument),
         (status = 202, description = "The job is processing and stops within a second", body = JobDocument),
+        (status = 400, description = "Malformed job id (not a UUID)", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 404, description = "Unknown job", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 409, description = "The job already finished", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
     ))]
 pub async fn cancel_job(
     State(state): State<AppState>,
-    Path(id): Path<Uuid>,
+    JobId(id): JobId,
 ) -> Result<Response, ApiError> {
     let jobs = state.jobs.clone();
     let record = blocking(move || jobs.cancel_if_enqueued(id, Utc::now())).await?;
@@ -394,12 +426,13 @@ pub async fn cancel_job(
     params(("id" = Uuid, Path, description = "Job id")),
     responses(
         (status = 204, description = "Deleted"),
+        (status = 400, description = "Malformed job id (not a UUID)", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 404, description = "Unknown job", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 409, description = "The job has not finished", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
     ))]
 pub async fn delete_job(
     State(state): State<AppState>,
-    Path(id): Path<Uuid>,
+    JobId(id): JobId,
 ) -> Result<StatusCode, ApiError> {
     let (jobs, blobs) = (state.jobs.clone(), state.blobs.clone());
     blocking(move || {

@@ -94,6 +94,13 @@ pub async fn track(State(state): State<AppState>, req: Request, next: Next) -> R
     let method = req.method().as_str().to_string();
     let start = Instant::now();
     let resp = next.run(req).await;
+    if resp
+        .extensions()
+        .get::<super::problem::StorageFailure>()
+        .is_some()
+    {
+        state.runner.note_storage_failure();
+    }
     state.metrics.record(
         &method,
         &route,

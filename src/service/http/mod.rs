@@ -1,9 +1,10 @@
 //! The HTTP front of the job service (axum): routes under `/v1`, problem+json errors, bearer
 //! auth, CORS, metrics, body limits and timeouts, tracing spans per request, and the server
 //! life cycle ([`serve`]): open the store, start the runner (which recovers interrupted jobs),
-//! bind, print the address, prune expired jobs periodically, and on SIGTERM/SIGINT stop
-//! accepting, end event streams, drain connections and let the runner finish or re-enqueue
-//! its jobs within the deadline.
+//! bind, serve connections under their limits ([`conn`]), print the address, prune expired
+//! jobs periodically, and on SIGTERM/SIGINT drain (readiness off, event streams end,
+//! connections close after their request), let the runner finish or re-enqueue its jobs within
+//! the deadline, then stop accepting.
 //!
 //! Handlers never run the engine or block: store and blob calls go through
 //! [`blocking`] (`spawn_blocking`), and jobs run on the runner's own pool.
@@ -29,6 +30,8 @@ use crate::service::store::sqlite::SqliteJobStore;
 use crate::service::store::{BlobStore, JobStore, StoreError};
 
 pub mod auth;
+pub mod conn;
+pub mod deadline;
 pub mod doc;
 pub mod events;
 pub mod files;
@@ -140,6 +143,10 @@ pub fn router(state: AppState) -> Router {
         .layer(middleware::from_fn(problem_rejections))
         .layer(middleware::from_fn_with_state(
             state.clone(),
+            deadline::upload_deadline,
+        ))
+        .layer(middleware::from_fn_with_state(
+            state.clone(),
             auth::require_token,
         ))
         .layer(RequestBodyTimeoutLayer::new(Duration::from_secs(
@@ -157,6 +164,7 @@ pub struct Server {
     /// Where it listens.
     pub addr: std::net::SocketAddr,
     shutdown_tx: watch::Sender<bool>,
+    stop_tx: watch::Sender<bool>,
     handle: tokio::task::JoinHandle<std::io::Result<()>>,
 }
 
@@ -168,6 +176,19 @@ pub async fn start(config: ServeConfig) -> Result<Server, String> {
 
 /// As [`start`], with the methods of `registry` (tests register extra methods this way).
 pub async fn start_with(config: ServeConfig, registry: Registry) -> Result<Server, String> {
+    start_with_stores(config, registry, |jobs, blobs| (jobs, blobs)).await
+}
+
+/// The stores a server uses: the job store and the blob store.
+pub type Stores = (Arc<dyn JobStore>, Arc<dyn BlobStore>);
+
+/// As [`start_with`], with the opened stores passed through `wrap` first (tests inject storage
+/// faults, e.g. a full disk, with a wrapper).
+pub async fn start_with_stores(
+    config: ServeConfig,
+    registry: Registry,
+    wrap: impl FnOnce(Arc<dyn JobStore>, Arc<dyn BlobStore>) -> Stores,
+) -> Result<Server, String> {
     config.validate().map_err(|e| e.to_string())?;
     std::fs::create_dir_all(&config.data_dir)
         .map_err(|e| format!("data dir {}: {e}", config.data_dir.display()))?;
@@ -175,6 +196,7 @@ pub async fn start_with(config: ServeConfig, registry: Registry) -> Result<Serve
         Arc::new(SqliteJobStore::open(&config.db_path()).map_err(|e| e.to_string())?);
     let blobs: Arc<dyn BlobStore> =
         Arc::new(FsBlobStore::open(&config.blob_dir()).map_err(|e| e.to_string())?);
+    let (jobs, blobs) = wrap(jobs, blobs);
     let runner = Runner::start(
         RunnerConfig {
             workers: config.workers,
@@ -183,6 +205,7 @@ pub async fn start_with(config: ServeConfig, registry: Registry) -> Result<Serve
             max_texture_size: config.max_texture_size,
             progress_interval: Duration::from_millis(config.progress_interval_ms),
             registry: registry.clone(),
+            storage_retry: Duration::from_secs(config.storage_retry_secs),
         },
         jobs.clone(),
         blobs.clone(),
@@ -210,37 +233,42 @@ pub async fn start_with(config: ServeConfig, registry: Registry) -> Result<Serve
     };
     tokio::spawn(ops::retention_loop(state.clone()));
     let app = router(state.clone());
-    let mut stop = state.shutdown.clone();
-    let handle = tokio::spawn(async move {
-        axum::serve(listener, app)
-            .with_graceful_shutdown(async move {
-                let _ = stop.wait_for(|s| *s).await;
-            })
-            .await
-    });
+    let (stop_tx, stop) = watch::channel(false);
+    let limits = conn::ConnLimits::from_config(&state.config);
+    let handle = tokio::spawn(conn::serve(
+        listener,
+        app,
+        limits,
+        state.shutdown.clone(),
+        stop,
+    ));
     Ok(Server {
         state,
         addr,
         shutdown_tx,
+        stop_tx,
         handle,
     })
 }
 
 impl Server {
-    /// Graceful stop: refuse new connections, end event streams, wait for open requests and
-    /// for the runner (running jobs finish or go back to the queue) within the deadline.
+    /// Graceful stop: drain (`/readyz` answers 503, event streams end, connections close
+    /// after their current request, new ones get one request each), let the runner finish or
+    /// re-enqueue its jobs within the deadline, then stop accepting and wait for the open
+    /// requests with what is left of it (at least a second).
     pub async fn shutdown(self) {
         let deadline = Duration::from_secs(self.state.config.shutdown_secs);
-        let _ = self.shutdown_tx.send(true);
         let started = std::time::Instant::now();
-        if tokio::time::timeout(deadline, self.handle).await.is_err() {
+        let _ = self.shutdown_tx.send(true);
+        self.state.runner.shutdown(deadline).await;
+        let _ = self.stop_tx.send(true);
+        let left = deadline.saturating_sub(started.elapsed());
+        if tokio::time::timeout(left.max(Duration::from_secs(1)), self.handle)
+            .await
+            .is_err()
+        {
             tracing::warn!("connections still open after the shutdown deadline");
         }
-        let left = deadline.saturating_sub(started.elapsed());
-        self.state
-            .runner
-            .shutdown(left.max(Duration::from_secs(1)))
-            .await;
     }
 }
 

@@ -25,7 +25,7 @@ impl Modify for BearerAuth {
 #[openapi(
     info(
         title = "retex",
-        description = "Texture transfer jobs between glTF meshes. Errors are RFC 9457 `application/problem+json`. When the server is configured with tokens, every route but /healthz and /readyz needs `Authorization: Bearer <token>`.",
+        description = "Texture transfer jobs between glTF meshes. Errors are RFC 9457 `application/problem+json`. When the server is configured with tokens, every route but /healthz and /readyz needs `Authorization: Bearer <token>` (401 without a valid one). A token's scope is `read` (GET), `submit` (also POST: submit, cancel) or `admin` (also DELETE); a request beyond its token's scope is 403 `insufficient-scope`.",
         license(name = "MIT OR Apache-2.0", identifier = "MIT OR Apache-2.0"),
     ),
     paths(
@@ -34,7 +34,7 @@ impl Modify for BearerAuth {
         ops::healthz, ops::readyz, metrics::metrics, openapi_json,
     ),
     components(schemas(
-        doc::JobDocument, doc::JobList, doc::JobLinks, doc::ArtifactLink, doc::ProgressDoc,
+        doc::JobDocument, doc::JobSummary, doc::JobList, doc::JobLinks, doc::ArtifactLink, doc::ProgressDoc,
         doc::StageCount, doc::JobEventDoc, doc::ProblemSchema, doc::JobStatusSchema, doc::SubmitForm,
     )),
     modifiers(&BearerAuth),

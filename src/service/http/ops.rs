@@ -1,5 +1,5 @@
-//! Operations: `GET /healthz` (the process answers), `GET /readyz` (the store answers and the
-//! server is not shutting down), and the retention sweep that prunes finished jobs older than
+//! Operations: `GET /healthz` (the process answers), `GET /readyz` (the server accepts work:
+//! not draining, storage healthy, disk space above `min_free_bytes`, queue not full), and the retention sweep that prunes finished jobs older than
 //! the TTL together with their files, and removes partial uploads a crash left in the blob
 //! store's temp dir (untouched for an hour). Unfinished jobs are never pruned.
 
@@ -21,41 +21,93 @@ pub async fn healthz() -> Json<Value> {
     Json(json!({"status": "ok"}))
 }
 
-/// Readiness: the job store answers and the server accepts work.
+/// Readiness: the server accepts work. Not ready (503, with `Retry-After`) while it drains,
+/// for `storage_retry_secs` after a storage failure (a full disk, a failing database write),
+/// when the job store does not answer, when the data directory's free space is under
+/// `min_free_bytes`, or when `queue_len` jobs are waiting. It keeps answering during a drain.
 #[utoipa::path(get, path = "/readyz", tag = "operations", security(()),
     responses(
         (status = 200, description = "Ready", body = Object),
-        (status = 503, description = "Shutting down or the store fails", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+        (status = 503, description = "Not ready: `shutting-down`, `storage-failing`, `store-unavailable`, `low-disk-space` or `queue-full`", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
     ))]
 pub async fn readyz(State(state): State<AppState>) -> Result<Json<Value>, ApiError> {
+    let unready = |kind: &str, title: &str, detail: String| {
+        ApiError::new(StatusCode::SERVICE_UNAVAILABLE, kind, title, detail).retry_after(5)
+    };
     if *state.shutdown.borrow() {
-        return Err(ApiError::new(
-            StatusCode::SERVICE_UNAVAILABLE,
+        return Err(unready(
             "shutting-down",
             "Shutting down",
-            "the server is draining",
+            "the server is draining".into(),
         ));
     }
+    let retry = state.config.storage_retry_secs;
+    if state.runner.storage_failing() {
+        return Err(unready(
+            "storage-failing",
+            "Storage failing",
+            format!("a storage write failed within the last {retry} s (see the server log)"),
+        )
+        .limit("storage_retry_secs", retry));
+    }
     let jobs = state.jobs.clone();
-    let counts = blocking(move || jobs.counts()).await.map_err(|e| {
-        ApiError::new(
-            StatusCode::SERVICE_UNAVAILABLE,
+    let counts = blocking(move || jobs.counts()).await.map_err(|_| {
+        unready(
             "store-unavailable",
             "Store unavailable",
-            e.problem.detail,
+            "the job store does not answer (see the server log)".into(),
         )
     })?;
+    let min_free = state.config.min_free_bytes;
+    let free = free_bytes(&state.config.data_dir);
+    if let Some(free) = free.filter(|f| *f < min_free) {
+        return Err(unready(
+            "low-disk-space",
+            "Low disk space",
+            format!("{free} bytes free in the data directory, under min_free_bytes"),
+        )
+        .limit("min_free_bytes", min_free));
+    }
     let queued: u64 = counts
         .by_status
         .iter()
         .filter(|(s, _)| *s == crate::service::model::JobStatus::Enqueued)
         .map(|(_, n)| *n)
         .sum();
+    let queue_len = state.config.queue_len;
+    if queued >= queue_len {
+        return Err(unready(
+            "queue-full",
+            "Queue full",
+            format!("{queued} jobs are waiting"),
+        )
+        .limit("queue_len", queue_len));
+    }
     Ok(Json(json!({
         "status": "ready",
         "queue_depth": queued,
         "busy_workers": state.runner.busy_workers(),
+        "free_bytes": free,
     })))
+}
+
+/// Bytes available to the server on the file system of `dir` (`statvfs`), if known.
+#[cfg(unix)]
+pub fn free_bytes(dir: &std::path::Path) -> Option<u64> {
+    use std::os::unix::ffi::OsStrExt;
+    let path = std::ffi::CString::new(dir.as_os_str().as_bytes()).ok()?;
+    // SAFETY: an all-zero statvfs is a valid value of this plain C struct.
+    let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
+    // SAFETY: `path` is NUL-terminated and outlives the call; `st` is a valid out-pointer.
+    let rc = unsafe { libc::statvfs(path.as_ptr(), &mut st) };
+    #[allow(clippy::unnecessary_cast)]
+    (rc == 0).then(|| (st.f_bavail as u64).saturating_mul(st.f_frsize as u64))
+}
+
+/// Free space is not checked off Unix.
+#[cfg(not(unix))]
+pub fn free_bytes(_dir: &std::path::Path) -> Option<u64> {
+    None
 }
 
 /// One retention sweep: removes finished jobs older than the TTL and their blobs, and

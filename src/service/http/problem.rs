@@ -20,6 +20,21 @@ use crate::service::store::StoreError;
 /// Media type of problem bodies.
 pub const PROBLEM_JSON: &str = "application/problem+json";
 
+/// `Retry-After` of a 507 for a full disk.
+pub const STORAGE_RETRY_SECS: u64 = 30;
+
+/// Most characters of a client's value a problem repeats back (cursors, ids, names).
+pub const ECHO_CHARS: usize = 64;
+
+/// The first `max` characters of `s`, with `…` when it was longer: what a problem may repeat
+/// of a client's value without echoing an arbitrarily long input back.
+pub fn clip(s: &str, max: usize) -> String {
+    match s.char_indices().nth(max) {
+        Some((cut, _)) => format!("{}…", &s[..cut]),
+        None => s.to_string(),
+    }
+}
+
 /// An error answer of the API: a [`Problem`] plus optional extra headers.
 #[derive(Debug, Clone)]
 pub struct ApiError {
@@ -27,7 +42,15 @@ pub struct ApiError {
     pub problem: Box<Problem>,
     /// `Retry-After` seconds, for 503.
     pub retry_after: Option<u64>,
+    /// The storage failed (see [`StorageFailure`]).
+    pub storage_failure: bool,
 }
+
+/// Response extension of an answer caused by a failing storage (full disk, locked database,
+/// I/O error): the request middleware reports it to the runner, so claims pause and `/readyz`
+/// turns not ready for a while.
+#[derive(Clone, Copy, Debug)]
+pub struct StorageFailure;
 
 impl ApiError {
     /// A problem of type `/problems/{kind}`.
@@ -42,6 +65,7 @@ impl ApiError {
                 limit: None,
             }),
             retry_after: None,
+            storage_failure: false,
         }
     }
 
@@ -78,15 +102,54 @@ impl ApiError {
         )
     }
 
-    /// 500 for a bug or a storage failure (logged with the detail).
+    /// 500 for a bug or a storage failure. The detail goes to the log only: the body never
+    /// carries raw OS or database text.
     pub fn internal(detail: impl std::fmt::Display) -> Self {
         tracing::error!(%detail, "internal error");
         Self::new(
             StatusCode::INTERNAL_SERVER_ERROR,
             "internal",
             "Internal server error",
-            detail.to_string(),
+            "the server failed to complete the request; the details are in its log",
         )
+    }
+
+    /// A file-system failure on the server's side (temporary upload files): as [`Self::storage`].
+    pub fn io(e: std::io::Error) -> Self {
+        Self::storage(&StoreError::Io(e))
+    }
+
+    /// A failure of the storage: 507 `insufficient-storage` for a full disk (with
+    /// `Retry-After`), 503 `store-busy` for a locked database (with `Retry-After`), else 500.
+    /// The raw error is logged, never sent.
+    pub fn storage(e: &StoreError) -> Self {
+        let mut answer = Self::storage_answer(e);
+        answer.storage_failure = e.is_storage_failure();
+        answer
+    }
+
+    fn storage_answer(e: &StoreError) -> Self {
+        if e.is_storage_full() {
+            tracing::error!(error = %e, "storage full");
+            return Self::new(
+                StatusCode::INSUFFICIENT_STORAGE,
+                "insufficient-storage",
+                "Insufficient storage",
+                "the server's storage is full; try again later",
+            )
+            .retry_after(STORAGE_RETRY_SECS);
+        }
+        if let StoreError::Busy(_) = e {
+            tracing::warn!(error = %e, "job database busy");
+            return Self::new(
+                StatusCode::SERVICE_UNAVAILABLE,
+                "store-busy",
+                "Store busy",
+                "the job database is busy (held by another writer); try again shortly",
+            )
+            .retry_after(1);
+        }
+        Self::internal(e)
     }
 
     /// 413 for a body or part over a size limit.
@@ -126,6 +189,7 @@ impl ApiError {
         Self {
             problem: Box::new(problem),
             retry_after: None,
+            storage_failure: false,
         }
     }
 
@@ -166,10 +230,13 @@ impl ApiError {
             StoreError::InvalidCursor(c) => Self::bad_request(
                 "invalid-cursor",
                 "next",
-                format!("cursor {c:?} was not issued by this server"),
+                format!(
+                    "cursor {:?} was not issued by this server (pass the `next` of the previous page unchanged)",
+                    clip(&c, ECHO_CHARS)
+                ),
             ),
             StoreError::QueueFull { limit } => Self::queue_full(limit),
-            other => Self::internal(other),
+            other => Self::storage(&other),
         }
     }
 }
@@ -184,6 +251,9 @@ impl IntoResponse for ApiError {
         if let Some(secs) = self.retry_after {
             resp.headers_mut()
                 .insert(header::RETRY_AFTER, HeaderValue::from(secs));
+        }
+        if self.storage_failure {
+            resp.extensions_mut().insert(StorageFailure);
         }
         resp
     }
@@ -228,6 +298,13 @@ mod tests {
         };
         let p = ApiError::ingest("source", &e).problem;
         assert_eq!(p.field.as_deref(), Some("source.buffers[0].uri"));
+    }
+
+    #[test]
+    fn clip_keeps_short_values_and_cuts_long_ones() {
+        assert_eq!(clip("abc", 5), "abc");
+        assert_eq!(clip("abcdef", 3), "abc…");
+        assert_eq!(clip("ééé", 2), "éé…");
     }
 
     #[test]

@@ -102,6 +102,9 @@ pub struct RunnerConfig {
     pub progress_interval: Duration,
     /// The methods jobs may run. Default: [`Registry::builtin`].
     pub registry: Registry,
+    /// After a job's output write hit a full disk, how long no job is claimed (the job goes
+    /// back to the queue). Default: 30 s.
+    pub storage_retry: Duration,
 }
 
 impl Default for RunnerConfig {
@@ -113,6 +116,7 @@ impl Default for RunnerConfig {
             max_texture_size: 8192,
             progress_interval: Duration::from_millis(100),
             registry: Registry::builtin(),
+            storage_retry: Duration::from_secs(30),
         }
     }
 }
@@ -155,6 +159,8 @@ enum Outcome {
     },
     Failed(Problem),
     Canceled,
+    /// Storing the outputs hit a full disk (the detail is for the log): not the job's fault.
+    StorageFull(String),
 }
 
 /// Claims and runs jobs; see the module docs.
@@ -174,7 +180,12 @@ pub struct Runner {
     stage_times: Mutex<Vec<(String, f64)>>,
     hook: Mutex<Option<EngineHook>>,
     dispatcher: Mutex<Option<tokio::task::JoinHandle<()>>>,
+    /// When storage last failed (see [`storage`]); no job is claimed for `storage_retry` after.
+    storage_failed: Mutex<Option<Instant>>,
 }
+
+#[path = "runner_storage.rs"]
+mod storage;
 
 impl std::fmt::Debug for Runner {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -260,6 +271,7 @@ impl Runner {
             stage_times: Mutex::new(Vec::new()),
             hook: Mutex::new(None),
             dispatcher: Mutex::new(None),
+            storage_failed: Mutex::new(None),
         });
         let me = Arc::clone(&runner);
         let task = handle.spawn(async move { me.dispatch().await });
@@ -394,7 +406,9 @@ impl Runner {
     /// Claims jobs while workers are free; sleeps until notified or the tick.
     async fn dispatch(self: Arc<Self>) {
         loop {
-            while !self.stopping.load(Ordering::SeqCst) && self.busy_workers() < self.config.workers
+            while !self.stopping.load(Ordering::SeqCst)
+                && self.busy_workers() < self.config.workers
+                && !self.storage_paused()
             {
                 let jobs = Arc::clone(&self.jobs);
                 match tokio::task::spawn_blocking(move || jobs.claim_next(Utc::now())).await {
@@ -532,13 +546,28 @@ impl Runner {
         if canceled {
             let how = match &outcome {
                 Outcome::Succeeded { .. } => "succeeded",
-                Outcome::Failed(_) => "failed",
+                Outcome::Failed(_) | Outcome::StorageFull(_) => "failed",
                 Outcome::Canceled => "canceled",
             };
             tracing::info!(%id, engine = how, "canceled job's engine call returned");
             return;
         }
+        // A job faster than the progress interval never stored its stage counts: store the
+        // final ones before finishing, so the document reports the stages that ran.
+        let last = to_job_progress(control.progress());
+        if last.stages_total != last_stored.stages_total && !matches!(outcome, Outcome::Canceled) {
+            let jobs = Arc::clone(&self.jobs);
+            match tokio::task::spawn_blocking(move || jobs.update_progress(id, &last)).await {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => tracing::warn!(%id, error = %e, "storing final progress failed"),
+                Err(e) => tracing::warn!(%id, error = %e, "storing final progress panicked"),
+            }
+        }
         let finish = match outcome {
+            Outcome::StorageFull(detail) => {
+                self.requeue_after_full_disk(id, &detail).await;
+                return;
+            }
             Outcome::Succeeded {
                 artifacts,
                 report,
@@ -585,6 +614,9 @@ impl Runner {
                     return;
                 }
                 Ok(Err(e)) => {
+                    if e.is_storage_failure() {
+                        self.note_storage_failure();
+                    }
                     tracing::error!(%id, attempt, error = %e, "finishing the job failed")
                 }
                 Err(e) => tracing::error!(%id, attempt, error = %e, "finishing the job panicked"),
@@ -701,7 +733,13 @@ fn execute(ctx: &EngineCtx, job: &JobRecord, control: &Control) -> Outcome {
     for (name, media_type, bytes) in files {
         let key = format!("jobs/{}/outputs/{name}", job.id);
         if let Err(e) = ctx.blobs.put(&key, &bytes) {
-            return Outcome::Failed(internal_problem(format!("storing {name}: {e}")));
+            if e.is_storage_full() {
+                return Outcome::StorageFull(format!("storing {name}: {e}"));
+            }
+            tracing::error!(id = %job.id, error = %e, "storing {name} failed");
+            return Outcome::Failed(internal_problem(format!(
+                "storing {name} failed; the details are in the server log"
+            )));
         }
         artifacts.push(ArtifactRef {
             name,

@@ -54,6 +54,13 @@ pub enum StoreError {
     /// Database failure.
     #[error("database: {0}")]
     Database(String),
+    /// The database is locked by another connection or process (SQLite busy/locked after the
+    /// busy timeout): transient.
+    #[error("database busy: {0}")]
+    Busy(String),
+    /// The database could not grow: its disk is full (SQLite `SQLITE_FULL`).
+    #[error("database disk full: {0}")]
+    DatabaseFull(String),
     /// A list cursor that this store did not issue.
     #[error("invalid cursor {0:?}")]
     InvalidCursor(String),
@@ -93,6 +100,38 @@ pub enum Finish {
     },
     /// Canceled by a client while processing.
     Canceled,
+}
+
+impl StoreError {
+    /// The disk or the quota is full (`ENOSPC`, `EDQUOT`, `SQLITE_FULL`): a condition of the
+    /// server, not of the request, that may clear when space is freed.
+    pub fn is_storage_full(&self) -> bool {
+        match self {
+            StoreError::Io(e) => is_full(e),
+            StoreError::DatabaseFull(_) => true,
+            _ => false,
+        }
+    }
+
+    /// A failure of the storage itself (file system or database) rather than an answer about
+    /// the request (not found, conflict, bad key or cursor, full queue).
+    pub fn is_storage_failure(&self) -> bool {
+        matches!(
+            self,
+            StoreError::Io(_)
+                | StoreError::Database(_)
+                | StoreError::Busy(_)
+                | StoreError::DatabaseFull(_)
+        )
+    }
+}
+
+/// Whether an I/O error means the disk or the quota is full.
+pub fn is_full(e: &std::io::Error) -> bool {
+    matches!(
+        e.kind(),
+        std::io::ErrorKind::StorageFull | std::io::ErrorKind::QuotaExceeded
+    )
 }
 
 /// Filter and page of [`JobStore::list`]; newest first.

@@ -43,8 +43,10 @@ const SCHEMA_VERSION: i64 = 1;
 pub const DEFAULT_PAGE: usize = 50;
 /// Largest page.
 pub const MAX_PAGE: usize = 500;
-/// How long a writer waits for a lock held by another connection or process.
-const BUSY_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long a writer waits for a lock held by another connection or process before the
+/// call fails as [`StoreError::Busy`] (the API answers 503 with `Retry-After` rather than
+/// hold the request; the runner retries its writes).
+const BUSY_TIMEOUT: Duration = Duration::from_secs(1);
 /// Read-only connections.
 const READERS: usize = 4;
 
@@ -74,7 +76,14 @@ CREATE INDEX IF NOT EXISTS idempotency_keys_created ON idempotency_keys (created
 
 impl From<rusqlite::Error> for StoreError {
     fn from(e: rusqlite::Error) -> Self {
-        StoreError::Database(e.to_string())
+        use rusqlite::ErrorCode;
+        match e.sqlite_error_code() {
+            Some(ErrorCode::DatabaseBusy | ErrorCode::DatabaseLocked) => {
+                StoreError::Busy(e.to_string())
+            }
+            Some(ErrorCode::DiskFull) => StoreError::DatabaseFull(e.to_string()),
+            _ => StoreError::Database(e.to_string()),
+        }
     }
 }
 
