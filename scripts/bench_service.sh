@@ -3,7 +3,9 @@
 #  1. GET /v1/jobs/{id} throughput and latency with wrk while every worker is busy on long jobs
 #     (ToyCar → ToyCar at texture_size 8192);
 #  2. submission overhead of a ~20 MB GLB: upload → 202 (validated, stored, enqueued), with curl,
-#     median of 5, idle workers.
+#     median of 5, idle workers;
+#  3. the same polls with idle workers, and with 1,000 idle connections held open beside wrk's
+#     (scripts/hold_connections.py).
 # Usage: scripts/bench_service.sh [path/to/retex]   (default target/release/retex; needs wrk, curl)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -47,6 +49,20 @@ done
 printf '%s\n' "${times[@]}" | sort -n | sed -n 3p | awk '{printf "submission of a %.1f MB GLB (+ Spot target), median of 5: %.0f ms\n", '"$(stat -c %s "$BIG")"'/1e6, $1*1000}'
 
 # 1. Busy workers: four slow jobs (two running, two queued), then wrk on one job document.
+# 3a. Idle workers: polls of a finished job.
+DONE_ID="$(curl -s -F "source=@$ASSETS/src_spot_keenan/spot_textured_derived.glb" -F "target=@$ASSETS/src_spot_keenan/spot_textured_derived.glb" -F "constraints=@$WORK/c64.json" "$BASE/v1/jobs" | sed 's/.*"id":"\([^"]*\)".*/\1/')"
+sleep 4
+echo "== idle workers"
+wrk -t2 -c32 -d15s --latency "$BASE/v1/jobs/$DONE_ID"
+# 3b. Idle workers, 1,000 idle connections open.
+python3 scripts/hold_connections.py "$BASE" 1000 25 &
+HOLD=$!
+sleep 3
+echo "== idle workers, 1000 idle connections open"
+wrk -t2 -c32 -d15s --latency "$BASE/v1/jobs/$DONE_ID"
+kill "$HOLD" 2>/dev/null || true; wait "$HOLD" 2>/dev/null || true
+
+echo "== busy workers"
 mapfile -t FORM < <(toycar_form 8192)
 IDS=()
 for i in 1 2 3 4; do

@@ -156,8 +156,12 @@ pub struct JobRecord {
     /// How many times a worker started it, less the starts a graceful shutdown interrupted
     /// (crash recoveries count).
     pub attempts: u32,
-    /// The client's Idempotency-Key, if given.
+    /// The client's Idempotency-Key, if given (prefixed by the owner id and `/` when
+    /// authentication is on: keys are kept per owner).
     pub idempotency_key: Option<String>,
+    /// Owner id of the submitting token (see `http::auth`); `None` without authentication.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub owner: Option<String>,
     /// Hex SHA-256 over the request's parts (to tell a replay from a different body).
     pub request_hash: String,
     /// The inputs.

@@ -107,6 +107,7 @@ fn fat_job(n: usize) -> JobRecord {
         report: Some(serde_json::json!({ "warnings": notes })),
         attempts: 1,
         idempotency_key: None,
+        owner: None,
         request_hash: format!("h{n}"),
         inputs: JobInputs {
             source: None,

@@ -89,6 +89,7 @@ fn submit(env: &Env, runner: &Runner, asset: &str, constraints: &str) -> Uuid {
         report: None,
         attempts: 0,
         idempotency_key: None,
+        owner: None,
         request_hash: hex::encode(Sha256::digest(constraints.as_bytes())),
         inputs: JobInputs {
             source: Some(source),

@@ -75,3 +75,88 @@ fn scopes_limit_what_each_token_may_do() {
     assert_eq!(r.status, 204, "{}", String::from_utf8_lossy(&r.body));
     request("GET", &job, &[("Authorization", &admin)], None).problem(404);
 }
+
+/// Job ownership: a submit token cancels only the jobs it submitted, and its Idempotency-Keys
+/// never replay another token's job.
+#[test]
+fn submit_tokens_cancel_only_their_own_jobs_and_keys_are_per_token() {
+    let s = TestServer::start(|c| {
+        c.tokens = vec![
+            "submit:farm-a-secret".into(),
+            "submit:farm-b-secret".into(),
+            "admin:ops-secret".into(),
+        ];
+        c.workers = 1;
+    });
+    let (farm_a, farm_b, admin) = (
+        bearer("farm-a-secret"),
+        bearer("farm-b-secret"),
+        bearer("ops-secret"),
+    );
+    let jobs = format!("{}/v1/jobs", s.base);
+    // A slow job keeps the worker busy so the next ones stay enqueued.
+    let slow = submit(&s.base, &spot_parts(8192), &[("Authorization", &admin)]);
+    assert_eq!(slow.status, 202);
+    let with_key = [
+        ("Authorization", farm_a.as_str()),
+        ("Idempotency-Key", "k1"),
+    ];
+    let r = submit(&s.base, &spot_parts(16), &with_key);
+    assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+    let a_job = r.json()["id"].as_str().unwrap().to_string();
+
+    // Farm B may read farm A's job but not cancel it.
+    let cancel_a = format!("{jobs}/{a_job}/cancel");
+    assert_eq!(
+        request(
+            "GET",
+            &format!("{jobs}/{a_job}"),
+            &[("Authorization", &farm_b)],
+            None
+        )
+        .status,
+        200
+    );
+    let p = request("POST", &cancel_a, &[("Authorization", &farm_b)], None).problem(403);
+    assert_eq!(p["type"], "/problems/not-job-owner", "{p}");
+    assert_eq!(p["field"], "Authorization", "{p}");
+
+    // The same key from farm B is a new job; from farm A a replay.
+    let r = submit(
+        &s.base,
+        &spot_parts(16),
+        &[
+            ("Authorization", farm_b.as_str()),
+            ("Idempotency-Key", "k1"),
+        ],
+    );
+    assert_eq!(r.status, 202, "another token's key must not replay");
+    let b_job = r.json()["id"].as_str().unwrap().to_string();
+    assert_ne!(b_job, a_job);
+    let r = submit(&s.base, &spot_parts(16), &with_key);
+    assert_eq!(r.status, 200);
+    assert_eq!(r.json()["id"].as_str(), Some(a_job.as_str()));
+
+    // Farm A cancels its own job; the admin cancels farm B's and the slow one.
+    let r = request("POST", &cancel_a, &[("Authorization", &farm_a)], None);
+    assert!([200, 202].contains(&r.status), "{}", r.status);
+    for id in [&b_job, slow.json()["id"].as_str().unwrap()] {
+        let r = request(
+            "POST",
+            &format!("{jobs}/{id}/cancel"),
+            &[("Authorization", &admin)],
+            None,
+        );
+        assert!([200, 202].contains(&r.status), "{}", r.status);
+    }
+    for id in [&a_job, &b_job] {
+        let doc = wait_for_with(
+            &s.base,
+            id,
+            &[("Authorization", &admin)],
+            Duration::from_secs(60),
+            terminal,
+        );
+        assert_eq!(doc["status"], "canceled", "{doc}");
+    }
+}

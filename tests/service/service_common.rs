@@ -192,9 +192,20 @@ pub fn wait_for(
     timeout: Duration,
     done: impl Fn(&str) -> bool,
 ) -> serde_json::Value {
+    wait_for_with(base, id, &[], timeout, done)
+}
+
+/// [`wait_for`] with request headers (e.g. `Authorization`).
+pub fn wait_for_with(
+    base: &str,
+    id: &str,
+    headers: &[(&str, &str)],
+    timeout: Duration,
+    done: impl Fn(&str) -> bool,
+) -> serde_json::Value {
     let start = Instant::now();
     loop {
-        let r = get(&format!("{base}/v1/jobs/{id}"));
+        let r = request("GET", &format!("{base}/v1/jobs/{id}"), headers, None);
         assert_eq!(r.status, 200, "{}", String::from_utf8_lossy(&r.body));
         let doc = r.json();
         if done(doc["status"].as_str().unwrap()) {

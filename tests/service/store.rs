@@ -50,6 +50,7 @@ fn job(created_at: DateTime<Utc>, method: &str) -> JobRecord {
         report: None,
         attempts: 0,
         idempotency_key: None,
+        owner: None,
         request_hash: "h0".into(),
         inputs: JobInputs {
             source: Some(ModelFiles {

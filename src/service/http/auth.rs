@@ -8,7 +8,8 @@
 //! `submit:<token>` may also submit and cancel jobs (POST), `admin:<token>` or a token without
 //! a prefix may do everything, including deleting jobs. A token short of the scope a request
 //! needs gets 403 `insufficient-scope` (RFC 6750 §3.1), so a read-only dashboard or a
-//! submitting client cannot delete other clients' jobs. CORS
+//! submitting client cannot delete other clients' jobs; a submit token cancels only the jobs it
+//! submitted (job ownership: `caller`). CORS
 //! preflights are answered by the CORS layer, outside authentication, and expose `Location`,
 //! `ETag` and `Retry-After` to the dashboard.
 
@@ -21,6 +22,7 @@ use axum::response::{IntoResponse, Response};
 use subtle::{ConditionallySelectable, ConstantTimeEq};
 use tower_http::cors::{AllowOrigin, CorsLayer};
 
+use super::caller::{owner_id, Caller};
 use super::problem::ApiError;
 use super::AppState;
 
@@ -96,7 +98,12 @@ pub fn token_matches(tokens: &[String], given: &[u8]) -> bool {
 }
 
 /// Middleware: refuses requests without a valid bearer token (when tokens are configured).
-pub async fn require_token(State(state): State<AppState>, req: Request, next: Next) -> Response {
+/// With a valid token, records the [`Caller`] (scope and owner id) for the handlers.
+pub async fn require_token(
+    State(state): State<AppState>,
+    mut req: Request,
+    next: Next,
+) -> Response {
     if state.config.tokens.is_empty()
         || OPEN_PATHS.contains(&req.uri().path())
         || req.method() == Method::OPTIONS
@@ -112,8 +119,16 @@ pub async fn require_token(State(state): State<AppState>, req: Request, next: Ne
             scheme.eq_ignore_ascii_case("bearer").then(|| token.trim())
         });
     let needed = Scope::needed(req.method());
-    match given.and_then(|t| token_scope(&state.config.tokens, t.as_bytes())) {
-        Some(scope) if scope >= needed => next.run(req).await,
+    let given = given.map(|t| t.as_bytes().to_vec());
+    match given
+        .as_deref()
+        .and_then(|t| token_scope(&state.config.tokens, t))
+    {
+        Some(scope) if scope >= needed => {
+            let owner = given.as_deref().map(owner_id);
+            req.extensions_mut().insert(Caller { scope, owner });
+            next.run(req).await
+        }
         Some(scope) => {
             let mut resp = ApiError::new(
                 StatusCode::FORBIDDEN,

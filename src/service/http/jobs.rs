@@ -19,6 +19,7 @@ use serde::Deserialize;
 use utoipa::IntoParams;
 use uuid::Uuid;
 
+use super::caller::{caller_of, Caller};
 use super::doc::{JobDocument, JobList, JobSummary};
 use super::ingest::{read_upload, safe_key_name, UploadModel};
 use super::linger::{content_length, SharedBody};
@@ -154,9 +155,10 @@ pub async fn submit(State(state): State<AppState>, request: Request) -> Result<R
     let result = if content_length(&headers).is_some_and(|n| n > limit) {
         Err(ApiError::too_large("body", "max_body_bytes", limit))
     } else {
+        let caller = caller_of(&parts.extensions, &state);
         let request = Request::from_parts(parts, limited);
         match Multipart::from_request(request, &state).await {
-            Ok(multipart) => submit_multipart(&state, &headers, multipart).await,
+            Ok(multipart) => submit_multipart(&state, &headers, &caller, multipart).await,
             Err(rejection) => Err(ApiError::bad_request(
                 "invalid-multipart",
                 "body",
@@ -182,12 +184,13 @@ pub async fn submit(State(state): State<AppState>, request: Request) -> Result<R
 async fn submit_multipart(
     state: &AppState,
     headers: &HeaderMap,
+    caller: &Caller,
     multipart: Multipart,
 ) -> Result<Response, ApiError> {
     let key = match headers.get("idempotency-key") {
         None => None,
         Some(v) => match v.to_str() {
-            Ok(s) if !s.is_empty() && s.len() <= 255 => Some(s.to_string()),
+            Ok(s) if !s.is_empty() && s.len() <= 255 => Some(caller.idempotency_key(s.to_string())),
             _ => {
                 return Err(ApiError::bad_request(
                     "invalid-idempotency-key",
@@ -230,6 +233,7 @@ async fn submit_multipart(
         report: None,
         attempts: 0,
         idempotency_key: key,
+        owner: caller.owner.clone(),
         request_hash: upload.request_hash.clone(),
         inputs: JobInputs::default(),
         artifacts: Vec::new(),
@@ -404,13 +408,19 @@ pub async fn list_jobs(
         (status = 200, description = "The job was enqueued and is now canceled", body = JobDocument),
         (status = 202, description = "The job is processing and stops within a second", body = JobDocument),
         (status = 400, description = "Malformed job id (not a UUID)", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+        (status = 403, description = "A read token, or a submit token and another owner's job", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 404, description = "Unknown job", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
         (status = 409, description = "The job already finished", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
     ))]
 pub async fn cancel_job(
     State(state): State<AppState>,
     JobId(id): JobId,
+    caller: Caller,
 ) -> Result<Response, ApiError> {
+    let owner = load_job(&state, id).await?.owner;
+    if !caller.may_manage(owner.as_deref()) {
+        return Err(caller.not_owner());
+    }
     let jobs = state.jobs.clone();
     let record = blocking(move || jobs.cancel_if_enqueued(id, Utc::now())).await?;
     if record.status == JobStatus::Processing {

@@ -30,6 +30,7 @@ use crate::service::store::sqlite::SqliteJobStore;
 use crate::service::store::{BlobStore, JobStore, StoreError};
 
 pub mod auth;
+pub mod caller;
 pub mod conn;
 pub mod deadline;
 pub mod doc;
