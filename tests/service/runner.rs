@@ -197,10 +197,16 @@ async fn a_job_succeeds_on_an_engine_thread_and_its_glb_loads() {
     );
 
     // Events: processing first, the terminal status last, revisions never decrease.
+    // The store commits the terminal state just before the runner broadcasts it: read events
+    // until the terminal one (or a timeout), not only those already sent.
     let mut got = Vec::new();
-    while let Ok(e) = events.try_recv() {
+    while let Ok(Ok(e)) = tokio::time::timeout(Duration::from_secs(10), events.recv()).await {
         if e.id == id {
+            let done = e.status.is_terminal();
             got.push(e);
+            if done {
+                break;
+            }
         }
     }
     assert_eq!(got.first().map(|e| e.status), Some(JobStatus::Processing));

@@ -646,3 +646,22 @@ fn delete_prefix_removes_a_job_folder_only() {
         Err(StoreError::InvalidKey(_))
     ));
 }
+
+#[test]
+fn temp_files_of_a_dead_writer_are_swept_at_open_but_not_a_live_ones() {
+    let dir = TempDir::new("tmp-sweep");
+    let first = FsBlobStore::open(&dir.0).unwrap();
+    let left = first.temp_dir().join("put-left-by-a-crash");
+    std::fs::write(&left, b"partial").unwrap();
+    // A second store on the same folder while the first lives: the file may be in use.
+    let second = FsBlobStore::open(&dir.0).unwrap();
+    assert!(left.exists(), "a live writer's temp file was removed");
+    drop(second);
+    drop(first);
+    // Reopened after the writer is gone (as after kill -9 and restart): nothing is left.
+    let _again = FsBlobStore::open(&dir.0).unwrap();
+    assert!(
+        !left.exists(),
+        "a dead writer's temp file survived the reopen"
+    );
+}

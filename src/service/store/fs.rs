@@ -16,7 +16,8 @@ use uuid::Uuid;
 
 use super::{BlobStore, StoreError};
 
-/// Temporary files older than this are removed by [`FsBlobStore::open`] (left over by a crash).
+/// Temporary files older than this are removed by [`FsBlobStore::open`] when another process
+/// may be using the same folder (left over by a crash).
 const STALE_TEMP: Duration = Duration::from_secs(3600);
 
 /// File-system [`BlobStore`].
@@ -24,6 +25,23 @@ const STALE_TEMP: Duration = Duration::from_secs(3600);
 pub struct FsBlobStore {
     blobs: PathBuf,
     tmp: PathBuf,
+    /// `<root>/tmp.lock`, held with an exclusive `flock` for the store's life when no other
+    /// process holds it (then every file in `tmp` at open was left by a dead writer).
+    _tmp_lock: Option<std::sync::Arc<File>>,
+}
+
+/// Takes an exclusive, non-blocking `flock` on `path` (created if needed); `None` when another
+/// open file holds it.
+fn exclusive_lock(path: &Path) -> std::io::Result<Option<File>> {
+    use std::os::fd::AsRawFd;
+    let file = OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(path)?;
+    // SAFETY: flock on a file descriptor this function owns; no memory is passed.
+    let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
+    Ok((rc == 0).then_some(file))
 }
 
 /// Checks a key and splits it into its segments.
@@ -67,8 +85,9 @@ fn not_found(key: &str) -> impl Fn(std::io::Error) -> StoreError + '_ {
 }
 
 impl FsBlobStore {
-    /// Opens (creating if needed) a blob store rooted at `root`, and removes temporary files
-    /// older than an hour.
+    /// Opens (creating if needed) a blob store rooted at `root`, and removes leftover temporary
+    /// files: all of them when this store is the only one using the folder (it holds
+    /// `<root>/tmp.lock`), else those older than an hour.
     ///
     /// # Errors
     /// [`StoreError::Io`] if the folders cannot be created.
@@ -79,9 +98,19 @@ impl FsBlobStore {
         let tmp = root.join("tmp");
         fs::create_dir_all(&blobs)?;
         fs::create_dir_all(&tmp)?;
+        let lock = exclusive_lock(&root.join("tmp.lock"))?;
         sync_dir(&root)?;
-        let store = Self { blobs, tmp };
-        store.sweep_temp(STALE_TEMP)?;
+        let sole_user = lock.is_some();
+        let store = Self {
+            blobs,
+            tmp,
+            _tmp_lock: lock.map(std::sync::Arc::new),
+        };
+        store.sweep_temp(if sole_user {
+            Duration::ZERO
+        } else {
+            STALE_TEMP
+        })?;
         Ok(store)
     }
 
@@ -266,13 +295,14 @@ impl BlobStore for FsBlobStore {
         let now = SystemTime::now();
         let mut removed = 0;
         for entry in fs::read_dir(&self.tmp)?.flatten() {
-            let old = entry
-                .metadata()
-                .ok()
-                .filter(|m| m.is_file())
-                .and_then(|m| m.modified().ok())
-                .and_then(|t| now.duration_since(t).ok())
-                .is_some_and(|age| age > older_than);
+            let old = older_than.is_zero()
+                || entry
+                    .metadata()
+                    .ok()
+                    .filter(|m| m.is_file())
+                    .and_then(|m| m.modified().ok())
+                    .and_then(|t| now.duration_since(t).ok())
+                    .is_some_and(|age| age > older_than);
             if old && fs::remove_file(entry.path()).is_ok() {
                 removed += 1;
             }
