@@ -18,6 +18,7 @@ mod constraints_schema;
 mod geodesic_fans;
 mod geometry_core;
 mod ingest_edge_cases;
+mod memory_budget;
 mod meshmatch_features;
 mod meshmatch_stripes;
 mod meshmatch_transfer;

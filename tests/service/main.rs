@@ -11,6 +11,7 @@ mod service_common;
 
 mod http;
 mod http_errors;
+mod memory_budget;
 mod method_seam;
 mod openapi;
 mod recovery;
