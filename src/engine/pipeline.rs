@@ -298,10 +298,16 @@ fn load_model(
     side: &'static str,
     m: ModelInput<'_>,
     limits: &IngestLimits,
+    extra: &[(&'static str, usize)],
 ) -> Result<(Asset, Demand), TransferError> {
     let asset = load_with(m.main, m.blobs, limits, Decode::HeadersOnly)
         .map_err(|source| TransferError::Ingest { side, source })?;
-    let demand = Demand::of_asset(&asset, &[]);
+    let extra: Vec<usize> = extra
+        .iter()
+        .filter(|(s, _)| *s == side)
+        .map(|(_, i)| *i)
+        .collect();
+    let demand = Demand::of_asset(&asset, &extra);
     Ok((asset, demand))
 }
 
@@ -338,14 +344,15 @@ fn load_inputs(
     }
     let stage = control.stage("load", 4)?;
     let limits = &input.limits;
+    let extra = method.extra_images(&input.constraints);
     let source = match input.source.filter(|_| use_source) {
-        Some(m) => Some(load_model("source", m, limits)?),
+        Some(m) => Some(load_model("source", m, limits, &extra)?),
         None => None,
     };
     control.check()?;
-    let target = load_model("target", input.target, limits)?;
+    let target = load_model("target", input.target, limits, &extra)?;
     let source_base = match input.source_base.filter(|_| use_base) {
-        Some(m) => Some(load_model("source_base", m, limits)?),
+        Some(m) => Some(load_model("source_base", m, limits, &extra)?),
         None => None,
     };
     let pattern = match input.pattern.filter(|_| use_pattern) {

@@ -493,3 +493,42 @@ fn meshmatch_on_inputs_too_large_for_its_working_set_is_refused_before_it_runs()
         other => panic!("{other}"),
     }
 }
+
+#[test]
+fn a_mask_image_the_method_reads_counts_against_the_budget() {
+    // Image 1 is on a material no primitive uses, but MeshMatch's by-example mask reads it.
+    let target = common::textured_triangle_glb(
+        &[common::small_png(8, 4), common::bomb_png(16384, 16384)],
+        1,
+    );
+    let constraints = Constraints::from_json(
+        br#"{"version": 1, "method": "meshmatch", "output": {"texture_size": 16},
+             "params": {"samples": 256, "source_samples": 256,
+                        "example": {"image": {"index": 1, "channel": "r", "threshold": 0.5}}}}"#,
+    )
+    .unwrap();
+    let source = common::textured_triangle_glb(&[common::small_png(2, 2)], 1);
+    let (src, tgt) = (glb_blobs(source), glb_blobs(target));
+    let input = TransferInput::pair(
+        ModelInput {
+            main: "m.glb",
+            blobs: &src,
+        },
+        ModelInput {
+            main: "m.glb",
+            blobs: &tgt,
+        },
+        constraints,
+    );
+    let e = transfer(&input, &Control::new()).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            TransferError::Ingest {
+                side: "target",
+                source: IngestError::ImageBudget { image: 1, .. }
+            }
+        ),
+        "{e}"
+    );
+}

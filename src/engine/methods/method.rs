@@ -219,6 +219,14 @@ pub trait Method: Sync + Send {
         None
     }
 
+    /// Images of an input (`source`, `target`, `source_base`) the method decodes besides the
+    /// base-colour images its primitives sample (e.g. a mask), so that they count against the
+    /// job's decoded-image budget and are decoded with the rest. Default: none.
+    fn extra_images(&self, constraints: &Constraints) -> Vec<(&'static str, usize)> {
+        let _ = constraints;
+        Vec::new()
+    }
+
     /// Runs the method.
     ///
     /// # Errors

@@ -281,6 +281,7 @@ pub async fn read_upload(
     let work = temp.clone();
     let cfg = config.clone();
     let job_constraints = parsed.clone();
+    let extra = method.extra_images(&parsed);
     let pattern = received.pattern.filter(|_| use_pattern);
     let pattern_check = pattern.clone();
     let (source_files, target_files, base_files) = (
@@ -302,14 +303,14 @@ pub async fn read_upload(
         // The models load under the limits, in parallel (the loader itself uses rayon).
         let check = |side: &str, m: &Option<UploadModel>| {
             m.as_ref()
-                .map(|m| validate_model(side, m, &cfg))
+                .map(|m| validate_model(side, m, &cfg, &extra))
                 .transpose()
         };
         let (a, (b, c)) = rayon::join(
             || check("source", &source),
             || {
                 rayon::join(
-                    || validate_model("target", &target, &cfg),
+                    || validate_model("target", &target, &cfg, &extra),
                     || check("source_base", &base),
                 )
             },

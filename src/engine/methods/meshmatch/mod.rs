@@ -65,6 +65,13 @@ impl Method for MeshMatch {
         MeshMatchParams::from_constraints(constraints).map(drop)
     }
 
+    fn extra_images(&self, constraints: &Constraints) -> Vec<(&'static str, usize)> {
+        match MeshMatchParams::from_constraints(constraints).map(|p| p.example) {
+            Ok(Some(ExampleMask::Image { index, .. })) => vec![("target", index)],
+            _ => Vec::new(),
+        }
+    }
+
     fn working_set(&self, constraints: &Constraints, input_triangles: u64) -> Option<WorkingSet> {
         let params = MeshMatchParams::from_constraints(constraints).ok()?;
         let texture = super::texture_working_set(constraints);

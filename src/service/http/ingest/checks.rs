@@ -42,6 +42,7 @@ pub(super) fn validate_model(
     side: &str,
     model: &UploadModel,
     config: &ServeConfig,
+    extra: &[(&'static str, usize)],
 ) -> Result<Demand, ApiError> {
     let mut blobs = BlobSet::new();
     for f in &model.files {
@@ -50,7 +51,14 @@ pub(super) fn validate_model(
     }
     // Structure, ranges and image headers are checked here; pixels are decoded by the job.
     load_with(&model.main, &blobs, &config.limits, Decode::HeadersOnly)
-        .map(|asset| Demand::of_asset(&asset, &[]))
+        .map(|asset| {
+            let extra: Vec<usize> = extra
+                .iter()
+                .filter(|(s, _)| *s == side)
+                .map(|(_, i)| *i)
+                .collect();
+            Demand::of_asset(&asset, &extra)
+        })
         .map_err(|e| ApiError::ingest(side, &e))
 }
 
