@@ -251,3 +251,95 @@ fn a_method_registered_in_a_test_runs_through_the_cli() {
         "{err}"
     );
 }
+
+/// Runs `retex` with `args` and returns (success, stderr, peak resident set in bytes), the peak
+/// from the kernel's accounting of exactly this child (`wait4`).
+// The child is reaped by `wait4` (which `Child::wait` cannot do while reporting its rusage).
+#[allow(clippy::zombie_processes)]
+fn run_measured(args: &[&std::ffi::OsStr]) -> (bool, String, u64) {
+    use std::io::Read;
+    let mut child = retex()
+        .args(args)
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stderr = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut stderr)
+        .unwrap();
+    let mut status = 0;
+    // SAFETY: plain FFI calls on a zeroed rusage and our own child's pid.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    let pid = unsafe { libc::wait4(child.id() as i32, &mut status, 0, &mut usage) };
+    assert_eq!(pid, child.id() as i32);
+    let ok = libc::WIFEXITED(status) && libc::WEXITSTATUS(status) == 0;
+    (ok, stderr, usage.ru_maxrss as u64 * 1024)
+}
+
+#[test]
+fn transfer_refuses_a_png_bomb_naming_the_image_and_the_limit() {
+    let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/test-outputs/cli");
+    std::fs::create_dir_all(&dir).unwrap();
+    let bomb = dir.join("bomb16384.glb");
+    std::fs::write(&bomb, textured_triangle_glb(&[bomb_png(16384, 16384)], 1)).unwrap();
+    let target = test_data("tgt_spot_remeshed_odedstein/spot_derived.glb");
+    let out = dir.join("never-written.glb");
+    let (ok, stderr, peak) = run_measured(&[
+        "transfer".as_ref(),
+        "--quiet".as_ref(),
+        "--source".as_ref(),
+        bomb.as_os_str(),
+        "--target".as_ref(),
+        target.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]);
+    assert!(!ok, "{stderr}");
+    assert!(
+        stderr.contains("source: images[0] (16384x16384)")
+            && stderr.contains("max_decoded_image_bytes = 536870912"),
+        "{stderr}"
+    );
+    println!("peak resident set of the refused transfer: {peak} bytes");
+    assert!(peak < 200 << 20, "{peak}");
+}
+
+#[test]
+fn transfer_never_decodes_an_image_no_primitive_samples() {
+    let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/test-outputs/cli");
+    std::fs::create_dir_all(&dir).unwrap();
+    // Image 1 declares 16384² (1 GiB decoded) with a few bytes of data, on an unused material.
+    let source = dir.join("unused16384.glb");
+    std::fs::write(
+        &source,
+        textured_triangle_glb(&[small_png(8, 4), bomb_png(16384, 16384)], 1),
+    )
+    .unwrap();
+    let constraints = dir.join("c64.json");
+    std::fs::write(
+        &constraints,
+        br#"{"version": 1, "output": {"texture_size": 64}}"#,
+    )
+    .unwrap();
+    let target = test_data("tgt_spot_remeshed_odedstein/spot_derived.glb");
+    let out = dir.join("unused_on_spot.glb");
+    let (ok, stderr, peak) = run_measured(&[
+        "transfer".as_ref(),
+        "--quiet".as_ref(),
+        "--source".as_ref(),
+        source.as_os_str(),
+        "--target".as_ref(),
+        target.as_os_str(),
+        "--constraints".as_ref(),
+        constraints.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ]);
+    assert!(ok, "{stderr}");
+    println!("peak resident set: {peak} bytes");
+    assert!(peak < 300 << 20, "{peak}");
+}

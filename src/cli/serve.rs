@@ -74,9 +74,14 @@ pub struct ServeArgs {
     /// Largest output.texture_size [env RETEX_MAX_TEXTURE_SIZE; default 8192].
     #[arg(long)]
     pub max_texture_size: Option<u32>,
-    /// Most triangles per model [env RETEX_MAX_TRIANGLES; default 20,000,000].
+    /// Most triangles per job, counting every mesh instance [env RETEX_MAX_TRIANGLES;
+    /// default 20,000,000].
     #[arg(long)]
     pub max_triangles: Option<u64>,
+    /// Memory the jobs may use together; workers are lowered to fit their worst case
+    /// [env RETEX_MEMORY_BYTES; default 0 = not set].
+    #[arg(long)]
+    pub memory_bytes: Option<u64>,
     /// JSON log lines [env RETEX_LOG_JSON=1].
     #[arg(long)]
     pub log_json: bool,
@@ -128,13 +133,17 @@ pub fn config(args: &ServeArgs) -> Result<(ServeConfig, String), String> {
         shutdown_secs,
         max_body_bytes,
         max_part_bytes,
-        max_texture_size
+        max_texture_size,
+        memory_bytes
     );
     if let Some(v) = args.max_triangles {
         c.limits.max_triangles = v;
     }
     c.log_json |= args.log_json;
     c.validate().map_err(|e| e.to_string())?;
+    if let Some(note) = c.fit_workers().map_err(|e| e.to_string())? {
+        eprintln!("retex serve: {note}");
+    }
     Ok((c, origin))
 }
 
@@ -183,6 +192,13 @@ pub fn run(args: &ServeArgs) -> Result<(), String> {
         println!("retex listening on http://{}", server.addr);
         let _ = std::io::stdout().flush();
         tracing::info!(addr = %server.addr, data_dir = %server.state.config.data_dir.display(), "serving");
+        let c = &server.state.config;
+        tracing::info!(
+            workers = c.workers,
+            job_worst_case_bytes = c.job_memory_bytes(),
+            memory_bytes = c.memory_bytes,
+            "memory: at most workers x job_worst_case_bytes for jobs (README \"Service\")"
+        );
         http::shutdown_signal().await;
         tracing::info!("shutdown requested; draining");
         server.shutdown().await;

@@ -10,10 +10,12 @@
 
 use serde::Serialize;
 
+use crate::engine::asset::budget::{self, Demand};
 use crate::engine::asset::constraints::{Constraints, ConstraintsError, MethodId, OutputFormat};
 use crate::engine::asset::edits::{Edit, EditedAsset};
 use crate::engine::asset::export::{export, ExportError};
-use crate::engine::asset::{load, Asset, BlobSet, IngestError, IngestLimits};
+use crate::engine::asset::images::read_header;
+use crate::engine::asset::{load_with, Asset, BlobSet, Decode, IngestError, IngestLimits};
 use crate::engine::control::{Cancelled, Control, StageTiming};
 use crate::engine::methods::{InputUse, Method, MethodError, MethodInput, PatternImage, Registry};
 
@@ -175,6 +177,17 @@ pub enum TransferError {
     /// Writing the output failed.
     #[error(transparent)]
     Export(#[from] ExportError),
+    /// The method's estimated working memory for these constraints exceeds `max_method_bytes`.
+    #[error("{field}: the method would need about {bytes} bytes of working memory for these params and inputs, over max_method_bytes = {max}")]
+    WorkingSet {
+        /// The constraints path that drives it (`params.samples`, `output.texture_size`), or
+        /// `inputs` when the input meshes' size does.
+        field: String,
+        /// The estimate.
+        bytes: u64,
+        /// The limit.
+        max: u64,
+    },
     /// Cancelled through the Control.
     #[error("cancelled")]
     Cancelled,
@@ -196,14 +209,17 @@ impl From<MethodError> for TransferError {
     }
 }
 
-/// The method a constraints document asks for, checked: the id is implemented and the params
-/// pass the method's own check. This is what submission runs before accepting a job.
+/// The method a constraints document asks for, checked: the id is implemented, the params
+/// pass the method's own check and its working set ([`Method::working_set`]) is within
+/// `limits.max_method_bytes`. This is what submission runs before accepting a job.
 ///
 /// # Errors
-/// [`TransferError::Constraints`] or [`TransferError::MethodNotImplemented`].
+/// [`TransferError::Constraints`], [`TransferError::MethodNotImplemented`] or
+/// [`TransferError::WorkingSet`].
 pub fn checked_method(
     registry: &Registry,
     constraints: &Constraints,
+    limits: &IngestLimits,
 ) -> Result<&'static dyn Method, TransferError> {
     constraints.validate()?;
     let method =
@@ -214,7 +230,29 @@ pub fn checked_method(
                 available: registry.available(),
             })?;
     method.check(constraints)?;
+    check_working_set(method, constraints, 0, limits)?;
     Ok(method)
+}
+
+/// Refuses a job whose method's working set ([`Method::working_set`]) with inputs of
+/// `input_triangles` instanced triangles exceeds `limits.max_method_bytes`.
+///
+/// # Errors
+/// [`TransferError::WorkingSet`].
+pub fn check_working_set(
+    method: &dyn Method,
+    constraints: &Constraints,
+    input_triangles: u64,
+    limits: &IngestLimits,
+) -> Result<(), TransferError> {
+    match method.working_set(constraints, input_triangles) {
+        Some(ws) if ws.bytes > limits.max_method_bytes => Err(TransferError::WorkingSet {
+            field: ws.field.to_string(),
+            bytes: ws.bytes,
+            max: limits.max_method_bytes,
+        }),
+        _ => Ok(()),
+    }
 }
 
 /// Runs a whole transfer with the built-in methods under `control`.
@@ -260,11 +298,22 @@ fn load_model(
     side: &'static str,
     m: ModelInput<'_>,
     limits: &IngestLimits,
-) -> Result<Asset, TransferError> {
-    load(m.main, m.blobs, limits).map_err(|source| TransferError::Ingest { side, source })
+    extra: &[(&'static str, usize)],
+) -> Result<(Asset, Demand), TransferError> {
+    let asset = load_with(m.main, m.blobs, limits, Decode::HeadersOnly)
+        .map_err(|source| TransferError::Ingest { side, source })?;
+    let extra: Vec<usize> = extra
+        .iter()
+        .filter(|(s, _)| *s == side)
+        .map(|(_, i)| *i)
+        .collect();
+    let demand = Demand::of_asset(&asset, &extra);
+    Ok((asset, demand))
 }
 
 /// Loads what `method` declares; refuses a missing required input, warns about unused ones.
+/// Every input is read to its headers first, the job's budget ([`budget::check_job`]) is checked
+/// over all of them, and only then are the sampled images and the pattern decoded.
 fn load_inputs(
     method: &dyn Method,
     input: &TransferInput<'_>,
@@ -295,21 +344,58 @@ fn load_inputs(
     }
     let stage = control.stage("load", 4)?;
     let limits = &input.limits;
+    let extra = method.extra_images(&input.constraints);
     let source = match input.source.filter(|_| use_source) {
-        Some(m) => Some(load_model("source", m, limits)?),
+        Some(m) => Some(load_model("source", m, limits, &extra)?),
         None => None,
     };
-    stage.tick(1)?;
     control.check()?;
-    let target = load_model("target", input.target, limits)?;
-    stage.tick(1)?;
+    let target = load_model("target", input.target, limits, &extra)?;
     let source_base = match input.source_base.filter(|_| use_base) {
-        Some(m) => Some(load_model("source_base", m, limits)?),
+        Some(m) => Some(load_model("source_base", m, limits, &extra)?),
         None => None,
     };
-    stage.tick(1)?;
     let pattern = match input.pattern.filter(|_| use_pattern) {
-        Some(p) => Some(
+        Some(p) => {
+            let header =
+                read_header(0, p.bytes, limits).map_err(|source| TransferError::Ingest {
+                    side: "pattern",
+                    source,
+                })?;
+            Some((p, Demand::of_image(&header)))
+        }
+        None => None,
+    };
+    let mut demands: Vec<(&'static str, &Demand)> = Vec::new();
+    if let Some((_, d)) = &source {
+        demands.push(("source", d));
+    }
+    demands.push(("target", &target.1));
+    if let Some((_, d)) = &source_base {
+        demands.push(("source_base", d));
+    }
+    if let Some((_, d)) = &pattern {
+        demands.push(("pattern", d));
+    }
+    budget::check_job(&demands, limits)
+        .map_err(|(side, source)| TransferError::Ingest { side, source })?;
+    let triangles = demands.iter().map(|(_, d)| d.triangles).sum();
+    check_working_set(method, &input.constraints, triangles, limits)?;
+    stage.tick(1)?;
+
+    let decode = |side: &'static str, (mut asset, demand): (Asset, Demand)| {
+        control.check()?;
+        budget::decode_images(&mut asset, &demand, limits)
+            .map_err(|source| TransferError::Ingest { side, source })?;
+        Ok::<_, TransferError>(asset)
+    };
+    let source = source.map(|m| decode("source", m)).transpose()?;
+    stage.tick(1)?;
+    let target = decode("target", target)?;
+    let source_base = source_base.map(|m| decode("source_base", m)).transpose()?;
+    stage.tick(1)?;
+    let pattern = match pattern {
+        Some((p, _)) => Some(
             PatternImage::decode(p.name, p.bytes.to_vec(), limits).map_err(|source| {
                 TransferError::Ingest {
                     side: "pattern",
@@ -350,7 +436,7 @@ fn run(
     control: &Control,
 ) -> Result<TransferOutput, TransferError> {
     let c = &input.constraints;
-    let method = checked_method(registry, c)?;
+    let method = checked_method(registry, c, &input.limits)?;
     let span = control.span(0.0, 0.05);
     let loaded = load_inputs(method, input, control)?;
     drop(span);

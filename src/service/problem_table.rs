@@ -106,6 +106,21 @@ fn ingest_location(e: &IngestError) -> (Option<String>, Option<(&'static str, u6
         | StrideTooSmall { accessor, .. }
         | InvalidAccessor { accessor, .. } => (Some(format!("accessors[{accessor}]")), None),
         TooManyVertices { max, .. } => (None, Some(("max_vertices", *max))),
+        GeometryBudget { what, max, .. } => (
+            None,
+            Some((
+                if *what == "vertices" {
+                    "max_vertices"
+                } else {
+                    "max_triangles"
+                },
+                *max,
+            )),
+        ),
+        ImageBudget { image, max, .. } => (
+            Some(format!("images[{image}]")),
+            Some(("max_decoded_image_bytes", *max)),
+        ),
         TooManyTriangles { max, .. } => (None, Some(("max_triangles", *max))),
         InvalidNodeHierarchy { node, .. } | NonFiniteTransform { node } => {
             (Some(format!("nodes[{node}]")), None)
@@ -229,6 +244,20 @@ pub fn transfer_problem(e: &TransferError) -> Problem {
             ..problem(
                 "missing-input",
                 "the method needs an input that was not given",
+                422,
+                e.to_string(),
+            )
+        },
+        TransferError::WorkingSet { field, max, .. } => Problem {
+            field: Some(if field == "inputs" {
+                "target".to_string()
+            } else {
+                constraints_field(field)
+            }),
+            limit: limit("max_method_bytes", *max),
+            ..problem(
+                "working-set-over-budget",
+                "the method would need too much memory",
                 422,
                 e.to_string(),
             )

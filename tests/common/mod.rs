@@ -175,3 +175,82 @@ pub fn bomb_png(w: u32, h: u32) -> Vec<u8> {
     }
     out
 }
+
+/// A GLB of `instances` nodes that each instantiate one textured triangle (POSITION and
+/// TEXCOORD_0). Image `i` of `images` is the base colour of material `i` (texture `i`); the
+/// triangle uses material 0, so every further image sits on a material no primitive uses. The
+/// images are embedded through buffer views.
+pub fn textured_triangle_glb(images: &[Vec<u8>], instances: usize) -> Vec<u8> {
+    textured_triangle_glb_with(images, instances, |_| {})
+}
+
+/// [`textured_triangle_glb`] with its JSON edited by `patch` before it is written.
+pub fn textured_triangle_glb_with(
+    images: &[Vec<u8>],
+    instances: usize,
+    patch: impl FnOnce(&mut serde_json::Value),
+) -> Vec<u8> {
+    let mut bin = Vec::new();
+    for v in [0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0] {
+        bin.extend_from_slice(&v.to_le_bytes());
+    }
+    for v in [0.0f32, 0.0, 1.0, 0.0, 0.0, 1.0] {
+        bin.extend_from_slice(&v.to_le_bytes());
+    }
+    for i in [0u16, 1, 2, 0] {
+        bin.extend_from_slice(&i.to_le_bytes());
+    }
+    let mut views = vec![
+        serde_json::json!({"buffer": 0, "byteOffset": 0, "byteLength": 36}),
+        serde_json::json!({"buffer": 0, "byteOffset": 36, "byteLength": 24}),
+        serde_json::json!({"buffer": 0, "byteOffset": 60, "byteLength": 6}),
+    ];
+    let mut json_images = Vec::new();
+    for png in images {
+        while !bin.len().is_multiple_of(4) {
+            bin.push(0);
+        }
+        json_images.push(serde_json::json!({"bufferView": views.len(), "mimeType": "image/png"}));
+        views.push(
+            serde_json::json!({"buffer": 0, "byteOffset": bin.len(), "byteLength": png.len()}),
+        );
+        bin.extend_from_slice(png);
+    }
+    while !bin.len().is_multiple_of(4) {
+        bin.push(0);
+    }
+    let n = images.len();
+    let mut json = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "buffers": [{"byteLength": bin.len()}],
+        "bufferViews": views,
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "type": "VEC3", "count": 3,
+             "min": [0, 0, 0], "max": [1, 1, 0]},
+            {"bufferView": 1, "componentType": 5126, "type": "VEC2", "count": 3},
+            {"bufferView": 2, "componentType": 5123, "type": "SCALAR", "count": 3}
+        ],
+        "images": json_images,
+        "textures": (0..n).map(|i| serde_json::json!({"source": i})).collect::<Vec<_>>(),
+        "materials": (0..n)
+            .map(|i| serde_json::json!({"pbrMetallicRoughness": {"baseColorTexture": {"index": i}}}))
+            .collect::<Vec<_>>(),
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1},
+                                     "indices": 2, "material": 0}]}],
+        "nodes": (0..instances)
+            .map(|i| serde_json::json!({"mesh": 0, "translation": [i as f32 * 2.0, 0, 0]}))
+            .collect::<Vec<_>>(),
+        "scenes": [{"nodes": (0..instances).collect::<Vec<_>>()}]
+    });
+    patch(&mut json);
+    glb(&json, &bin)
+}
+
+/// A small real PNG (RGBA8), `w` x `h` of a gradient.
+pub fn small_png(w: u32, h: u32) -> Vec<u8> {
+    let img = image::RgbaImage::from_fn(w, h, |x, y| image::Rgba([x as u8, y as u8, 90, 255]));
+    let mut out = Vec::new();
+    img.write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png)
+        .unwrap();
+    out
+}

@@ -295,7 +295,9 @@ fn constraints_campaign(iterations: usize, seed: u64) {
             liveness: Duration::from_secs(5),
             min_accepted: MIN_ACCEPTED_CONSTRAINTS,
         },
-        |bytes| match Constraints::from_json(bytes).map(|c| checked_method(&registry, &c).is_ok()) {
+        |bytes| match Constraints::from_json(bytes)
+            .map(|c| checked_method(&registry, &c, &IngestLimits::default()).is_ok())
+        {
             Ok(true) => Verdict::Accepted,
             _ => Verdict::Refused,
         },

@@ -19,6 +19,7 @@ mod fuzz_ingest;
 mod geodesic_fans;
 mod geometry_core;
 mod ingest_edge_cases;
+mod memory_budget;
 mod meshmatch_features;
 mod meshmatch_stripes;
 mod meshmatch_transfer;

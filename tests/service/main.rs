@@ -14,6 +14,7 @@ mod contract;
 mod fuzz_multipart;
 mod http;
 mod http_errors;
+mod memory_budget;
 mod method_seam;
 mod openapi;
 mod recovery;

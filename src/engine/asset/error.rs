@@ -289,6 +289,38 @@ pub enum IngestError {
         /// The limit.
         max: u64,
     },
+    /// The images the job decodes would take more than `max_decoded_image_bytes` together;
+    /// `image` is the one that brings the sum over the limit.
+    #[error(
+        "images[{image}] ({width}x{height}) decodes to {bytes} bytes, which brings the job's decoded images to {total} bytes, over max_decoded_image_bytes = {max}"
+    )]
+    ImageBudget {
+        /// Image index (0 for the pattern).
+        image: usize,
+        /// Header width.
+        width: u32,
+        /// Header height.
+        height: u32,
+        /// Its decoded size.
+        bytes: u64,
+        /// The job's decoded bytes up to and including it.
+        total: u64,
+        /// The limit.
+        max: u64,
+    },
+    /// The job's surfaces (every mesh instance of every model the method reads) would hold more
+    /// vertices or triangles than `max_vertices` / `max_triangles`.
+    #[error(
+        "the job's meshes hold {count} {what} counting every mesh instance, over max_{what} = {max}"
+    )]
+    GeometryBudget {
+        /// `vertices` or `triangles`.
+        what: &'static str,
+        /// The count over the inputs up to and including this one.
+        count: u64,
+        /// The limit.
+        max: u64,
+    },
     /// The node hierarchy is not a forest.
     #[error("nodes[{node}]: {reason}")]
     InvalidNodeHierarchy {
@@ -385,6 +417,11 @@ impl IngestError {
             NonFinite { .. } => "non-finite",
             TooManyVertices { .. } => "too-many-vertices",
             TooManyTriangles { .. } => "too-many-triangles",
+            ImageBudget { .. } => "image-budget-exceeded",
+            GeometryBudget {
+                what: "vertices", ..
+            } => "too-many-vertices",
+            GeometryBudget { .. } => "too-many-triangles",
             InvalidNodeHierarchy { .. } => "invalid-node-hierarchy",
             NodeTooDeep { .. } => "node-too-deep",
             NonFiniteTransform { .. } => "non-finite-transform",

@@ -1,10 +1,12 @@
 //! Images (glTF 2.0 §3.8.1 "Images", §3.8.2 "Image Data"): format detection, header-only size
 //! checks, and bounded decoding of base-color images to RGBA8.
 //!
-//! Every image's width and height are read from its header alone (no pixel allocation) and
-//! checked against `max_image_side` and `max_image_pixels`, so a small file that claims to be
-//! 100000x100000 (a decompression bomb) is refused before decoding. Only images used as a base
-//! color are decoded, with `image::Limits` (max width, height and allocation) as a second guard.
+//! Every image's width, height and pixel layout are read from its header alone (no pixel
+//! allocation) and checked against `max_image_side` and `max_image_pixels`, so a small file that
+//! claims to be 100000x100000 (a decompression bomb) is refused before decoding; its decoded
+//! size counts against the job's budget ([`super::budget`]). Only the base-color images a drawn
+//! primitive samples are decoded, straight into the one RGBA8 buffer that is kept, with
+//! `image::Limits` (max width, height and allocation) as a second guard.
 //! glTF 2.0 core allows PNG and JPEG; the format is sniffed from the bytes (the JSON `mimeType`
 //! is only a hint, §3.8.2 says the bytes must match it).
 //!
@@ -43,23 +45,74 @@ pub fn mime_of(format: ImageFormat) -> &'static str {
     }
 }
 
-/// Reads width and height from the header of image `image` and checks them against the limits.
+/// What the header of an image says, read without decoding pixels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ImageHeader {
+    /// PNG or JPEG.
+    pub format: ImageFormat,
+    /// Width in pixels (> 0).
+    pub width: u32,
+    /// Height in pixels (> 0).
+    pub height: u32,
+    /// Bytes per pixel the decoder writes (1 for 8-bit grey ... 8 for 16-bit RGBA).
+    pub bytes_per_pixel: u8,
+}
+
+impl ImageHeader {
+    /// Bytes of the one buffer [`decode_rgba8`] allocates for this image: width × height ×
+    /// max(4, bytes per pixel). The RGBA8 result takes 4 bytes a pixel; a 16-bit RGB or RGBA PNG
+    /// is decoded at 6 or 8 bytes a pixel into the same buffer and packed to RGBA8 in place.
+    pub fn decoded_bytes(&self) -> u64 {
+        u64::from(self.width) * u64::from(self.height) * u64::from(self.bytes_per_pixel.max(4))
+    }
+}
+
+fn decoder_for<'a>(
+    image: usize,
+    bytes: &'a [u8],
+    format: ImageFormat,
+    limits: &IngestLimits,
+) -> Result<impl image::ImageDecoder + 'a, IngestError> {
+    let mut reader = ImageReader::with_format(Cursor::new(bytes), format);
+    let mut lim = image::Limits::default();
+    lim.max_image_width = Some(limits.max_image_side);
+    lim.max_image_height = Some(limits.max_image_side);
+    lim.max_alloc = Some(limits.max_image_alloc_bytes);
+    reader.limits(lim);
+    reader.into_decoder().map_err(|e| {
+        let too_large = matches!(e, image::ImageError::Limits(_));
+        IngestError::ImageDecode {
+            image,
+            message: if too_large {
+                format!("cannot decode: {e}")
+            } else {
+                format!("cannot read the image header: {e}")
+            },
+        }
+    })
+}
+
+/// Reads the header of image `image` (format, size, pixel layout) and checks the size against
+/// `max_image_side` and `max_image_pixels`. No pixel is decoded.
 ///
 /// # Errors
 /// [`IngestError::UnrecognizedImage`], [`IngestError::ImageDecode`] (corrupt header) or
 /// [`IngestError::ImageTooLarge`].
-pub fn checked_dimensions(
+pub fn read_header(
     image: usize,
     bytes: &[u8],
     limits: &IngestLimits,
-) -> Result<(ImageFormat, u32, u32), IngestError> {
+) -> Result<ImageHeader, IngestError> {
+    use image::ImageDecoder;
     let format = sniff(bytes).ok_or(IngestError::UnrecognizedImage { image })?;
-    let (width, height) = ImageReader::with_format(Cursor::new(bytes), format)
-        .into_dimensions()
-        .map_err(|e| IngestError::ImageDecode {
-            image,
-            message: format!("cannot read the image header: {e}"),
-        })?;
+    // The side limit is checked below, with the error that names it.
+    let unbounded = IngestLimits {
+        max_image_side: u32::MAX,
+        ..limits.clone()
+    };
+    let decoder = decoder_for(image, bytes, format, &unbounded)?;
+    let (width, height) = decoder.dimensions();
+    let bytes_per_pixel = decoder.color_type().bytes_per_pixel();
     if width == 0 || height == 0 {
         return Err(IngestError::ImageDecode {
             image,
@@ -83,42 +136,120 @@ pub fn checked_dimensions(
             max: limits.max_image_pixels,
         });
     }
-    Ok((format, width, height))
+    Ok(ImageHeader {
+        format,
+        width,
+        height,
+        bytes_per_pixel,
+    })
 }
 
-/// Decodes image `image` (already checked by [`checked_dimensions`]) to RGBA8 under
-/// `image::Limits`. 16-bit and grey images are converted; colors stay sRGB-encoded.
+/// [`read_header`], returning the format and size.
 ///
 /// # Errors
-/// [`IngestError::ImageDecode`] when the data is corrupt or a decoder limit is hit.
+/// As [`read_header`].
+pub fn checked_dimensions(
+    image: usize,
+    bytes: &[u8],
+    limits: &IngestLimits,
+) -> Result<(ImageFormat, u32, u32), IngestError> {
+    read_header(image, bytes, limits).map(|h| (h.format, h.width, h.height))
+}
+
+/// Decodes image `image` (already checked by [`read_header`]) to RGBA8 under `image::Limits`,
+/// straight into the one buffer the [`DecodedImage`] keeps (width × height × max(4, bytes per
+/// pixel) bytes, see [`ImageHeader::decoded_bytes`]); grey, grey-alpha, RGB and 16-bit pixels are
+/// expanded or packed to RGBA8 in place, exactly as `image`'s `into_rgba8` converts them (16-bit
+/// channels rounded to `(c + 128) / 257`). Colors stay sRGB-encoded.
+///
+/// # Errors
+/// [`IngestError::ImageDecode`] when the data is corrupt, a decoder limit is hit or the buffer
+/// cannot be allocated.
 pub fn decode_rgba8(
     image: usize,
     bytes: &[u8],
     format: ImageFormat,
     limits: &IngestLimits,
 ) -> Result<DecodedImage, IngestError> {
-    let mut reader = ImageReader::with_format(Cursor::new(bytes), format);
-    let mut lim = image::Limits::default();
-    lim.max_image_width = Some(limits.max_image_side);
-    lim.max_image_height = Some(limits.max_image_side);
-    lim.max_alloc = Some(limits.max_image_alloc_bytes);
-    reader.limits(lim);
-    let decoded = reader.decode().map_err(|e| IngestError::ImageDecode {
-        image,
-        message: format!("cannot decode: {e}"),
-    })?;
-    let rgba = decoded.into_rgba8();
-    let (width, height) = rgba.dimensions();
-    let pixels = rgba
-        .into_raw()
-        .chunks_exact(4)
-        .map(|c| [c[0], c[1], c[2], c[3]])
-        .collect();
+    use image::{ColorType, ImageDecoder};
+    let fail = |message: String| IngestError::ImageDecode { image, message };
+    let decoder = decoder_for(image, bytes, format, limits)?;
+    let (width, height) = decoder.dimensions();
+    let color = decoder.color_type();
+    let total = decoder.total_bytes();
+    if total > limits.max_image_alloc_bytes {
+        return Err(fail(format!(
+            "cannot decode: {total} bytes of pixels exceed max_image_alloc_bytes = {}",
+            limits.max_image_alloc_bytes
+        )));
+    }
+    let n = width as usize * height as usize;
+    // One [u8; 4] cell per pixel, two for 16-bit RGB(A) (6 or 8 bytes a pixel while decoding).
+    let cells = n * (color.bytes_per_pixel() as usize).max(4).div_ceil(4);
+    let mut pixels: Vec<[u8; 4]> = Vec::new();
+    pixels
+        .try_reserve_exact(cells)
+        .map_err(|e| fail(format!("cannot allocate {} bytes: {e}", cells * 4)))?;
+    pixels.resize(cells, [0; 4]);
+    let buf = pixels.as_flattened_mut();
+    let used = usize::try_from(total).map_err(|e| fail(e.to_string()))?;
+    decoder
+        .read_image(&mut buf[..used])
+        .map_err(|e| fail(format!("cannot decode: {e}")))?;
+    match color {
+        ColorType::Rgba8 => {}
+        ColorType::Rgb8 => expand_back(buf, n, 3, |s| [s[0], s[1], s[2], 255]),
+        ColorType::L8 => expand_back(buf, n, 1, |s| [s[0], s[0], s[0], 255]),
+        ColorType::La8 => expand_back(buf, n, 2, |s| [s[0], s[0], s[0], s[1]]),
+        ColorType::L16 => expand_back(buf, n, 2, |s| {
+            let l = narrow(s, 0);
+            [l, l, l, 255]
+        }),
+        ColorType::La16 => expand_back(buf, n, 4, |s| {
+            let l = narrow(s, 0);
+            [l, l, l, narrow(s, 1)]
+        }),
+        ColorType::Rgb16 => pack_forward(buf, n, 6, |s| {
+            [narrow(s, 0), narrow(s, 1), narrow(s, 2), 255]
+        }),
+        ColorType::Rgba16 => pack_forward(buf, n, 8, |s| {
+            [narrow(s, 0), narrow(s, 1), narrow(s, 2), narrow(s, 3)]
+        }),
+        other => return Err(fail(format!("cannot decode: unsupported pixels {other:?}"))),
+    }
+    if pixels.len() != n {
+        pixels.truncate(n);
+        // Shrinking a large block gives its tail back in place (no copy).
+        pixels.shrink_to_fit();
+    }
     Ok(DecodedImage {
         width,
         height,
         pixels,
     })
+}
+
+/// Channel `k` of native-endian 16-bit samples, rounded to 8 bits as `image` does.
+fn narrow(s: &[u8], k: usize) -> u8 {
+    let c = u16::from_ne_bytes([s[2 * k], s[2 * k + 1]]);
+    ((u32::from(c) + 128) / 257) as u8
+}
+
+/// Widens `n` pixels of `from` bytes (< 4, or 4 in place) at the front of `buf` to RGBA8, last
+/// pixel first so that no source byte is overwritten before it is read.
+fn expand_back(buf: &mut [u8], n: usize, from: usize, px: impl Fn(&[u8]) -> [u8; 4]) {
+    for i in (0..n).rev() {
+        let rgba = px(&buf[i * from..i * from + from]);
+        buf[i * 4..i * 4 + 4].copy_from_slice(&rgba);
+    }
+}
+
+/// Packs `n` pixels of `from` bytes (> 4) to RGBA8 at the front of `buf`, first pixel first.
+fn pack_forward(buf: &mut [u8], n: usize, from: usize, px: impl Fn(&[u8]) -> [u8; 4]) {
+    for i in 0..n {
+        let rgba = px(&buf[i * from..i * from + from]);
+        buf[i * 4..i * 4 + 4].copy_from_slice(&rgba);
+    }
 }
 
 fn wrap(mode: &Checked<gltf::json::texture::WrappingMode>) -> Wrap {

@@ -8,22 +8,23 @@
 //! every buffer view and accessor ([`super::accessor`], §3.6.2); images, textures and materials
 //! ([`super::images`], §3.8, §3.9, plus `KHR_texture_transform` and the archived
 //! `KHR_materials_pbrSpecularGlossiness`); mesh primitives (§3.7.2: modes, attribute types incl.
-//! `KHR_mesh_quantization`, index range, finite positions, vertex/triangle budgets); and the node
-//! hierarchy and scene (§3.5: strict forest, no cycles, finite TRS or matrix, f64 products).
+//! `KHR_mesh_quantization`, index range, finite positions, vertex/triangle budgets); the node
+//! hierarchy and scene (§3.5: strict forest, no cycles, finite TRS or matrix, f64 products);
+//! and the model's budget ([`super::budget`]: instanced geometry, decoded image bytes) before
+//! the images its primitives sample are decoded.
 //!
 //! [`load`] never touches the filesystem or network, and runs under `catch_unwind`, so a bug
 //! surfaces as [`IngestError::Internal`] instead of taking the process down.
 
-use std::collections::BTreeSet;
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::sync::Arc;
 
 use gltf::json::Root;
-use rayon::prelude::*;
 use serde::de::DeserializeOwned;
 use serde_json::Value;
 
 use super::accessor;
+use super::budget::{self, Demand};
 use super::meshes::read_meshes;
 use super::model::*;
 use super::scene::scene_instances;
@@ -39,10 +40,21 @@ pub struct IngestLimits {
     pub max_json_bytes: u64,
     /// Decoded bytes of all data: URIs together. Default: 256 MiB.
     pub max_data_uri_bytes: u64,
-    /// Vertices summed over all primitives (points and lines excluded). Default: 20,000,000.
+    /// Vertices summed over all primitives (points and lines excluded), and again over every
+    /// mesh instance of every model a job reads ([`super::budget`]). Default: 20,000,000.
     pub max_vertices: u64,
-    /// Triangles summed over all primitives. Default: 20,000,000.
+    /// Triangles summed over all primitives, and again over every mesh instance of every model
+    /// a job reads. Default: 20,000,000.
     pub max_triangles: u64,
+    /// Bytes of decoded pixels per job: width × height × max(4, bytes per pixel) summed over
+    /// every image the job decodes (the base-colour images a drawn primitive samples, and the
+    /// pattern), from the headers before anything is decoded ([`super::budget`]).
+    /// Default: 512 MiB (e.g. eight 4096² images; a 16384² image alone is 1 GiB).
+    pub max_decoded_image_bytes: u64,
+    /// Bytes of a method's own working memory per job, as the method estimates it from the
+    /// constraints before the job runs (MeshMatch: its synthesis meshes and fans; every method
+    /// that bakes a texture: `output.texture_size`² × 32 bytes). Default: 4 GiB.
+    pub max_method_bytes: u64,
     /// Width or height of any image, in pixels. Default: 16384.
     pub max_image_side: u32,
     /// Width × height of any image, in pixels. Default: 16384².
@@ -61,6 +73,8 @@ impl Default for IngestLimits {
             max_data_uri_bytes: 256 << 20,
             max_vertices: 20_000_000,
             max_triangles: 20_000_000,
+            max_decoded_image_bytes: 512 << 20,
+            max_method_bytes: 4 << 30,
             max_image_side: 16384,
             max_image_pixels: 16384 * 16384,
             max_image_alloc_bytes: 1 << 30,
@@ -89,11 +103,14 @@ pub fn load(main: &str, blobs: &BlobSet, limits: &IngestLimits) -> Result<Asset,
 /// Which images [`load_with`] decodes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Decode {
-    /// Decode every image a material uses as base color (what the methods sample).
+    /// Decode the base-color images that a drawn primitive samples
+    /// ([`super::budget::sampled_images`], what the methods read), after checking their decoded
+    /// size against `max_decoded_image_bytes`. Other images are never decoded.
     BaseColor,
     /// Decode nothing: every image's format and header dimensions are still checked against the
-    /// limits, but no pixels are read. For validating an upload quickly; the job that uses the
-    /// asset loads it again with [`Decode::BaseColor`].
+    /// limits, and the model's budget ([`super::budget`]) too, but no pixels are read. For
+    /// validating an upload quickly, or for a caller that checks a whole job's budget before
+    /// decoding ([`super::budget::decode_images`]).
     HeadersOnly,
 }
 
@@ -197,7 +214,6 @@ fn load_unguarded(
     let buffers = load_buffers(&root, bin, base, blobs, &mut data_budget)?;
 
     let mut image_list = Vec::with_capacity(root.images.len());
-    let mut formats = Vec::with_capacity(root.images.len());
     for (i, img) in root.images.iter().enumerate() {
         let what = format!("images[{i}]");
         let (data, uri_mime): (Vec<u8>, Option<String>) = match (&img.uri, img.buffer_view) {
@@ -240,52 +256,28 @@ fn load_unguarded(
                 mime_type: m,
                 width: 0,
                 height: 0,
+                decoded_bytes: 0,
                 decoded: None,
             });
-            formats.push(None);
             continue;
         }
-        let (format, width, height) = images::checked_dimensions(i, &data, limits)?;
-        let mime_type = images::mime_of(format).to_string();
+        let header = images::read_header(i, &data, limits)?;
         image_list.push(ImageSource {
             bytes: Arc::new(data),
-            mime_type,
-            width,
-            height,
+            mime_type: images::mime_of(header.format).to_string(),
+            width: header.width,
+            height: header.height,
+            decoded_bytes: header.decoded_bytes(),
             decoded: None,
         });
-        formats.push(Some(format));
     }
 
     let textures = images::read_textures(&json, &root)?;
     let materials = images::read_materials(&root, textures.len())?;
 
-    // Decode the images that some material uses as base color.
-    let used: BTreeSet<usize> = materials
-        .iter()
-        .filter_map(|m| m.base_color_texture)
-        .filter_map(|t| textures[t.texture].image)
-        .filter(|&i| formats[i].is_some() && decode == Decode::BaseColor)
-        .collect();
-    let used: Vec<usize> = used.into_iter().collect();
-    let decoded = used
-        .par_iter()
-        .map(|&i| {
-            images::decode_rgba8(
-                i,
-                &image_list[i].bytes,
-                formats[i].expect("filtered"),
-                limits,
-            )
-        })
-        .collect::<Result<Vec<_>, _>>()?;
-    for (i, d) in used.into_iter().zip(decoded) {
-        image_list[i].decoded = Some(Arc::new(d));
-    }
-
     let primitives = read_meshes(&root, &layouts, &buffers, &materials, limits, &mut warnings)?;
     let instances = scene_instances(&root, limits)?;
-    Ok(Asset {
+    let mut asset = Asset {
         json,
         buffers,
         images: image_list,
@@ -294,7 +286,15 @@ fn load_unguarded(
         primitives,
         instances,
         warnings,
-    })
+    };
+    // This model alone against the job's budget (the pipeline and the service also check the
+    // sum over a job's inputs); the sampled images are decoded only within it.
+    let demand = Demand::of_asset(&asset, &[]);
+    budget::check_job(&[("model", &demand)], limits).map_err(|(_, e)| e)?;
+    if decode == Decode::BaseColor {
+        budget::decode_images(&mut asset, &demand, limits)?;
+    }
+    Ok(asset)
 }
 
 /// Deserializes the typed document. `textures` are read from the raw JSON instead (gltf-json

@@ -4,6 +4,7 @@
 pub mod accessor;
 mod apply;
 pub mod blobs;
+pub mod budget;
 pub mod constraints;
 pub mod edits;
 pub mod error;

@@ -3,7 +3,7 @@
 //!
 //! Conventions: positions are in the primitive's local space (node transforms live in
 //! [`MeshInstance::world`]); vertex colors and factors are linear; images keep their encoded
-//! bytes for export and, for base-color images only, a decoded sRGB RGBA8 copy for sampling.
+//! bytes for export and, for the base-color images a drawn primitive samples, a decoded sRGB RGBA8 copy for sampling.
 //! glTF UV convention: (0,0) is the top-left of the image, v grows downwards.
 
 use std::sync::Arc;
@@ -45,7 +45,11 @@ pub struct ImageSource {
     pub width: u32,
     /// See `width`.
     pub height: u32,
-    /// The decoded pixels, present for images that a material uses as base color.
+    /// Bytes its decoded pixels take ([`super::images::ImageHeader::decoded_bytes`]); 0 for an
+    /// image retex does not read (kept for export only).
+    pub decoded_bytes: u64,
+    /// The decoded pixels, present for images that a drawn primitive samples as base color
+    /// ([`super::budget::sampled_images`]).
     pub decoded: Option<Arc<DecodedImage>>,
 }
 

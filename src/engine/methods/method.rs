@@ -208,9 +208,54 @@ pub trait Method: Sync + Send {
     /// A [`ConstraintsError`] naming the JSON path (`params.hks.eigenpairs`).
     fn check(&self, constraints: &Constraints) -> Result<(), ConstraintsError>;
 
+    /// The method's own working memory for these constraints (beyond the loaded inputs and
+    /// their surfaces) when its inputs hold `input_triangles` instanced triangles, and the
+    /// constraints path that drives it; the pipeline and the service refuse a job whose estimate
+    /// exceeds `max_method_bytes` before running it: from the params alone (0 triangles) when
+    /// the constraints are checked, and again once the inputs' headers are read. `None` (the
+    /// default) for a method that does not say.
+    fn working_set(&self, constraints: &Constraints, input_triangles: u64) -> Option<WorkingSet> {
+        let _ = (constraints, input_triangles);
+        None
+    }
+
+    /// Images of an input (`source`, `target`, `source_base`) the method decodes besides the
+    /// base-colour images its primitives sample (e.g. a mask), so that they count against the
+    /// job's decoded-image budget and are decoded with the rest. Default: none.
+    fn extra_images(&self, constraints: &Constraints) -> Vec<(&'static str, usize)> {
+        let _ = constraints;
+        Vec::new()
+    }
+
     /// Runs the method.
     ///
     /// # Errors
     /// [`MethodError`].
     fn run(&self, input: &MethodInput<'_>, control: &Control) -> Result<MethodOutput, MethodError>;
+}
+
+/// A method's estimated working memory ([`Method::working_set`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct WorkingSet {
+    /// Estimated peak bytes.
+    pub bytes: u64,
+    /// The constraints path of the value that drives it (`params.samples`,
+    /// `output.texture_size`), or `inputs` when the input meshes' size does.
+    pub field: &'static str,
+}
+
+/// Bytes per texel of a texture output (bake hits, linear colour, coverage, padding pyramid,
+/// the sRGB image and its PNG). Measured: `project` Fox → Fox at 8192² peaks 1.78 GB above the
+/// same job at 2048² (28 bytes per added texel).
+pub const TEXEL_BYTES: u64 = 32;
+
+/// The working set of baking one `output.texture_size` texture. A target whose primitives use
+/// several materials gets one texture each; each further one holds about 17 bytes per texel
+/// more (its linear colour and coverage) until all are padded, which this does not count.
+pub fn texture_working_set(constraints: &Constraints) -> WorkingSet {
+    let size = u64::from(constraints.output.texture_size);
+    WorkingSet {
+        bytes: size * size * TEXEL_BYTES,
+        field: "output.texture_size",
+    }
 }

@@ -27,7 +27,8 @@ mod method;
 mod schema;
 
 pub use method::{
-    InputSpec, InputUse, Method, MethodError, MethodInput, MethodOutput, PatternImage, ResultFile,
+    texture_working_set, InputSpec, InputUse, Method, MethodError, MethodInput, MethodOutput,
+    PatternImage, ResultFile, WorkingSet, TEXEL_BYTES,
 };
 pub use schema::{constraints_schema, constraints_schema_for, constraints_schema_json};
 pub use shared_params::SharedParams;

@@ -502,6 +502,7 @@ mod tests {
             mime_type: "image/png".into(),
             width: 4,
             height: 4,
+            decoded_bytes: 64,
             decoded: Some(Arc::new(decoded)),
         };
         let material = Material {

@@ -15,11 +15,14 @@ use sha2::{Digest, Sha256};
 
 use super::problem::ApiError;
 use crate::engine::asset::constraints::{Constraints, MAX_CONSTRAINTS_BYTES};
-use crate::engine::asset::{load_with, BlobSet, Decode};
 use crate::engine::methods::{InputUse, Registry};
 use crate::engine::pipeline::checked_method;
 use crate::service::config::ServeConfig;
 use crate::service::problem_table::{texture_size_problem, transfer_problem};
+
+mod checks;
+
+use checks::{check_pattern, validate_model};
 
 /// The multipart parts a submission may have.
 const PARTS: [&str; 5] = ["source", "target", "constraints", "pattern", "source_base"];
@@ -258,7 +261,7 @@ pub async fn read_upload(
             config.max_texture_size,
         )));
     }
-    let method = checked_method(registry, &parsed)
+    let method = checked_method(registry, &parsed, &config.limits)
         .map_err(|e| ApiError::from_problem(transfer_problem(&e)))?;
     let spec = method.inputs();
     let missing = |part: &str| {
@@ -286,6 +289,8 @@ pub async fn read_upload(
 
     let work = temp.clone();
     let cfg = config.clone();
+    let job_constraints = parsed.clone();
+    let extra = method.extra_images(&parsed);
     let pattern = received.pattern.filter(|_| use_pattern);
     let pattern_check = pattern.clone();
     let (source_files, target_files, base_files) = (
@@ -300,25 +305,32 @@ pub async fn read_upload(
         let source = group("source", source_files)?;
         let target = assemble("target", target_files, &work, &cfg)?;
         let base = group("source_base", base_files)?;
-        if let Some(p) = &pattern_check {
-            check_pattern(&p.path, &cfg)?;
-        }
+        let pattern_demand = match &pattern_check {
+            Some(p) => Some(check_pattern(&p.path, &cfg)?),
+            None => None,
+        };
         // The models load under the limits, in parallel (the loader itself uses rayon).
         let check = |side: &str, m: &Option<UploadModel>| {
-            m.as_ref().map_or(Ok(()), |m| validate_model(side, m, &cfg))
+            m.as_ref()
+                .map(|m| validate_model(side, m, &cfg, &extra))
+                .transpose()
         };
         let (a, (b, c)) = rayon::join(
             || check("source", &source),
             || {
                 rayon::join(
-                    || validate_model("target", &target, &cfg),
+                    || validate_model("target", &target, &cfg, &extra),
                     || check("source_base", &base),
                 )
             },
         );
-        a?;
-        b?;
-        c?;
+        let (a, b, c) = (a?, b?, c?);
+        checks::job_budget(
+            [a.as_ref(), Some(&b), c.as_ref(), pattern_demand.as_ref()],
+            method,
+            &job_constraints,
+            &cfg,
+        )?;
         Ok((source, target, base))
     })
     .await
@@ -559,50 +571,6 @@ fn unzip(
         out.push(UploadFile { name, path });
     }
     Ok(out)
-}
-
-/// Loads a model under the configured limits without decoding pixels; the asset is dropped (the job loads it
-/// again on the engine pool).
-fn validate_model(side: &str, model: &UploadModel, config: &ServeConfig) -> Result<(), ApiError> {
-    let mut blobs = BlobSet::new();
-    for f in &model.files {
-        let bytes = std::fs::read(&f.path).map_err(ApiError::io)?;
-        blobs.insert(f.name.clone(), bytes);
-    }
-    // Structure, ranges and image headers are checked here; pixels are decoded by the job.
-    load_with(&model.main, &blobs, &config.limits, Decode::HeadersOnly)
-        .map(drop)
-        .map_err(|e| ApiError::ingest(side, &e))
-}
-
-/// A pattern must be a PNG or JPEG within the image limits (only its header is read).
-fn check_pattern(path: &Path, config: &ServeConfig) -> Result<(), ApiError> {
-    let bad = |detail: String| {
-        ApiError::new(
-            StatusCode::UNPROCESSABLE_ENTITY,
-            "invalid-pattern",
-            "Invalid pattern image",
-            detail,
-        )
-        .field("pattern")
-    };
-    let reader = image::ImageReader::open(path)
-        .and_then(|r| r.with_guessed_format())
-        .map_err(|e| bad(e.to_string()))?;
-    if !matches!(
-        reader.format(),
-        Some(image::ImageFormat::Png | image::ImageFormat::Jpeg)
-    ) {
-        return Err(bad("not a png or jpeg image".into()));
-    }
-    let (w, h) = reader.into_dimensions().map_err(|e| bad(e.to_string()))?;
-    let side = config.limits.max_image_side;
-    if w > side || h > side {
-        return Err(
-            bad(format!("{w}x{h} exceeds max_image_side = {side}")).limit("max_image_side", side)
-        );
-    }
-    Ok(())
 }
 
 /// A blob key segment for a file name: `[A-Za-z0-9._-]` only, not starting with a dot,

@@ -41,7 +41,7 @@ pub use example::ExampleMask;
 pub use run::run;
 
 use super::shared_params::SharedParams;
-use super::{InputSpec, Method, MethodError, MethodInput, MethodOutput, ResultFile};
+use super::{InputSpec, Method, MethodError, MethodInput, MethodOutput, ResultFile, WorkingSet};
 use crate::engine::asset::constraints::MethodId;
 use crate::engine::control::Control;
 
@@ -63,6 +63,33 @@ impl Method for MeshMatch {
 
     fn check(&self, constraints: &Constraints) -> Result<(), ConstraintsError> {
         MeshMatchParams::from_constraints(constraints).map(drop)
+    }
+
+    fn extra_images(&self, constraints: &Constraints) -> Vec<(&'static str, usize)> {
+        match MeshMatchParams::from_constraints(constraints).map(|p| p.example) {
+            Ok(Some(ExampleMask::Image { index, .. })) => vec![("target", index)],
+            _ => Vec::new(),
+        }
+    }
+
+    fn working_set(&self, constraints: &Constraints, input_triangles: u64) -> Option<WorkingSet> {
+        let params = MeshMatchParams::from_constraints(constraints).ok()?;
+        let texture = super::texture_working_set(constraints);
+        let synthesis = params.working_set_bytes();
+        let inputs = input_triangles.saturating_mul(INPUT_TRIANGLE_BYTES);
+        let field = if inputs > synthesis.max(texture.bytes) {
+            "inputs"
+        } else if synthesis >= texture.bytes {
+            "params.samples"
+        } else {
+            texture.field
+        };
+        Some(WorkingSet {
+            bytes: synthesis
+                .saturating_add(texture.bytes)
+                .saturating_add(inputs),
+            field,
+        })
     }
 
     fn run(&self, input: &MethodInput<'_>, control: &Control) -> Result<MethodOutput, MethodError> {
@@ -111,8 +138,21 @@ impl From<MeshMatchError> for MethodError {
     }
 }
 
-/// Largest synthesis mesh (memory: about 3 KiB per vertex and mesh for fans, charts and levels).
+/// Largest synthesis mesh (memory: about 3 KiB per vertex and mesh for fans, charts and levels
+/// at the default fans; see [`MeshMatchParams::working_set_bytes`]).
 pub const MAX_SAMPLES: usize = 262_144;
+
+/// Bytes per synthesis vertex and mesh besides the fans (levels, frames, charts, BVH, features,
+/// the field and its matches).
+const VERTEX_BYTES: u64 = 1280;
+/// Bytes per instanced triangle of the inputs while they are resampled to the synthesis meshes
+/// (beyond the surfaces every method builds). Measured: `samples` 4096 on a 2,000,000-triangle
+/// grid onto itself peaks 9.6 GB, 9.2 GB above the same job on 125,000 triangles (2.45 KB per
+/// added triangle, of which about 400 bytes are the surfaces and BVHs of any method).
+const INPUT_TRIANGLE_BYTES: u64 = 2048;
+/// Bytes per fan sample (ring × spoke) of a synthesis vertex: its colour in the source and
+/// target fans and its chart position.
+const FAN_SAMPLE_BYTES: u64 = 32;
 
 /// Which shape features describe a patch's place on the shape (§4.1).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
@@ -272,6 +312,20 @@ impl MeshMatchParams {
             other => ConstraintsError::new("params", other.to_string()),
         })?;
         Ok(p)
+    }
+
+    /// Estimated peak bytes of the synthesis: (target + source synthesis vertices) ×
+    /// (1,280 + 32 × rings × spokes). At the default fans that is about 3 KiB per vertex and
+    /// mesh (the 64K + 64K benchmark: 376 MiB estimated, 389 MiB peak resident measured for the
+    /// whole process). An unset `source_samples` counts as its largest default, 4 × `samples`
+    /// up to 262,144.
+    pub fn working_set_bytes(&self) -> u64 {
+        let target = self.samples as u64;
+        let source = self
+            .source_samples
+            .map_or((4 * target).min(MAX_SAMPLES as u64), |s| s as u64);
+        let fan = (self.rings * self.spokes) as u64;
+        (target + source) * (VERTEX_BYTES + FAN_SAMPLE_BYTES * fan)
     }
 
     /// Checks every range (those of the derived schema, nested `hks`, `affinity` and `example`

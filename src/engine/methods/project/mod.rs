@@ -204,6 +204,10 @@ impl Method for Project {
         ProjectParams::from_constraints(constraints).map(drop)
     }
 
+    fn working_set(&self, constraints: &Constraints, _: u64) -> Option<super::WorkingSet> {
+        Some(super::texture_working_set(constraints))
+    }
+
     fn run(&self, input: &MethodInput<'_>, control: &Control) -> Result<MethodOutput, MethodError> {
         let params = ProjectParams::from_constraints(input.constraints)?;
         let (edits, report) = run(
