@@ -11,10 +11,12 @@
 #[path = "../common/mod.rs"]
 mod common;
 mod common_geometry;
+mod elastiface_common;
 mod meshmatch_common;
 
 mod color_output;
 mod constraints_schema;
+mod elastiface;
 mod geodesic_fans;
 mod geometry_core;
 mod ingest_edge_cases;
