@@ -275,3 +275,130 @@ fn elastiface_bump_and_stretch_beats_snapping() {
     assert!(res < 0.01, "correspondence residual {res}");
     assert!(psnr > 28.0, "re-laid texture psnr {psnr}");
 }
+
+/// The positions of the output's only primitive.
+fn fitted_positions(out: &retex::engine::pipeline::TransferOutput) -> Vec<[f32; 3]> {
+    output_asset(out).primitives[0].positions.clone()
+}
+
+#[test]
+fn elastiface_scaling_both_inputs_by_1000_scales_the_output() {
+    let (a, b) = (pair(1.0), pair(1000.0));
+    let out_a = run_glbs(&a.source_glb, &a.target_glb, constraints(1.0, json!({}))).unwrap();
+    let out_b = run_glbs(&b.source_glb, &b.target_glb, constraints(1000.0, json!({}))).unwrap();
+    let (pa, pb) = (fitted_positions(&out_a), fitted_positions(&out_b));
+    let worst = pa
+        .iter()
+        .zip(&pb)
+        .map(|(x, y)| dist(x.map(|c| c as f64 * 1000.0), y.map(f64::from)))
+        .fold(0.0, f64::max);
+    eprintln!(
+        "scale: worst |1000 a - b| / diagonal = {:.2e}",
+        worst / b.diagonal
+    );
+    assert!(worst < 1e-5 * b.diagonal, "worst deviation {worst}");
+}
+
+#[test]
+fn elastiface_template_fitted_to_itself_returns_itself() {
+    let source = uv_sphere(48, 24, |p| p);
+    let grey = texture_png(4, 4, |_, _| [0.5, 0.2, 0.2]);
+    let glb = mesh_glb(&source, Some(&grey), 1.0);
+    let corr: Vec<Value> = landmarks()
+        .iter()
+        .map(|p| json!({"source": {"point": p}, "target": {"point": p}}))
+        .collect();
+    let c = json!({"version": 1, "method": "elastiface", "correspondences": corr,
+        "output": {"texture_size": 64}});
+    let out = run_glbs(&glb, &glb, c).unwrap();
+    let fitted = fitted_positions(&out);
+    let diagonal = bbox_diagonal(&source.positions);
+    let worst = source
+        .positions
+        .iter()
+        .zip(&fitted)
+        .map(|(a, b)| dist(a.map(f64::from), b.map(f64::from)))
+        .fold(0.0, f64::max);
+    eprintln!(
+        "idempotence: worst {:.2e} of the diagonal",
+        worst / diagonal
+    );
+    assert!(worst <= 1e-6 * diagonal, "moved by {worst}");
+}
+
+#[test]
+fn elastiface_writes_positions_through_the_source_node_transform() {
+    let p = pair(1.0);
+    // The same template, stored at half size under a node that scales by 2.
+    let half = p.source.mapped(|q| q.map(|c| c * 0.5));
+    let grey = texture_png(4, 4, |_, _| [0.2, 0.2, 0.2]);
+    let scaled = mesh_glb(&half, Some(&grey), 2.0);
+    let plain = run_glbs(&p.source_glb, &p.target_glb, constraints(1.0, json!({}))).unwrap();
+    let out = run_glbs(&scaled, &p.target_glb, constraints(1.0, json!({}))).unwrap();
+    assert_validator_clean(&out.model, "elastiface_node_scale.glb");
+    let worst = fitted_positions(&plain)
+        .iter()
+        .zip(&fitted_positions(&out))
+        .map(|(a, b)| dist(a.map(f64::from), b.map(|c| 2.0 * c as f64)))
+        .fold(0.0, f64::max);
+    assert!(
+        worst < 1e-5 * p.diagonal,
+        "world positions differ by {worst}"
+    );
+}
+
+/// Floats of a VEC3 float accessor of a GLB (tightly packed, not sparse).
+fn accessor_vec3(glb: &[u8], accessor: usize) -> Vec<[f32; 3]> {
+    let len = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
+    let doc: Value = serde_json::from_slice(&glb[20..20 + len]).unwrap();
+    let bin = &glb[20 + len + 8..];
+    let a = &doc["accessors"][accessor];
+    let v = &doc["bufferViews"][a["bufferView"].as_u64().unwrap() as usize];
+    let start = v["byteOffset"].as_u64().unwrap_or(0) as usize
+        + a["byteOffset"].as_u64().unwrap_or(0) as usize;
+    (0..a["count"].as_u64().unwrap() as usize)
+        .map(|i| {
+            std::array::from_fn(|k| {
+                let o = start + 12 * i + 4 * k;
+                f32::from_le_bytes(bin[o..o + 4].try_into().unwrap())
+            })
+        })
+        .collect()
+}
+
+#[test]
+fn elastiface_morph_target_holds_the_displacement_in_the_source_frame() {
+    let p = pair(1.0);
+    let extra = json!({"params": {"output": "morph_target"}});
+    let out = run_glbs(&p.source_glb, &p.target_glb, constraints(1.0, extra)).unwrap();
+    assert_validator_clean(&out.model, "elastiface_morph.glb");
+    let plain = run_glbs(&p.source_glb, &p.target_glb, constraints(1.0, json!({}))).unwrap();
+    // POSITION is the template's.
+    assert_eq!(fitted_positions(&out), p.source.positions);
+    let len = u32::from_le_bytes(out.model[12..16].try_into().unwrap()) as usize;
+    let doc: Value = serde_json::from_slice(&out.model[20..20 + len]).unwrap();
+    assert_eq!(
+        doc["meshes"][0]["extras"]["targetNames"],
+        json!(["elastiface"])
+    );
+    let target = doc["meshes"][0]["primitives"][0]["targets"][0]["POSITION"]
+        .as_u64()
+        .unwrap() as usize;
+    let deltas = accessor_vec3(&out.model, target);
+    // template + delta = the fitted shape with the initial similarity undone.
+    let s = &out.report.method_report["initial_similarity"];
+    let scale = s["scale"].as_f64().unwrap();
+    let r: Vec<Vec<f64>> = serde_json::from_value(s["rotation"].clone()).unwrap();
+    let t: Vec<f64> = serde_json::from_value(s["translation"].clone()).unwrap();
+    let worst = fitted_positions(&plain)
+        .iter()
+        .zip(p.source.positions.iter().zip(&deltas))
+        .map(|(world, (base, d))| {
+            let q: [f64; 3] = std::array::from_fn(|k| world[k] as f64 - t[k]);
+            let back: [f64; 3] =
+                std::array::from_fn(|c| (0..3).map(|k| r[k][c] * q[k]).sum::<f64>() / scale);
+            dist(back, std::array::from_fn(|k| (base[k] + d[k]) as f64))
+        })
+        .fold(0.0, f64::max);
+    assert!(worst < 1e-5 * p.diagonal, "morph target differs by {worst}");
+}
