@@ -85,17 +85,19 @@ pub fn uv_sphere(nu: usize, nv: usize, rot: impl Fn([f64; 3]) -> [f64; 3]) -> Me
     grid(nu, nv, |u, v| rot(sphere_point(u, v))).orient_outward()
 }
 
-/// A torus with radii `r1` (tube centre) and `r2` (tube).
-pub fn torus(nu: usize, nv: usize, r1: f64, r2: f64) -> MeshData {
-    grid(nu, nv, |u, v| {
-        let (a, b) = (
-            2.0 * std::f64::consts::PI * u,
-            2.0 * std::f64::consts::PI * v,
-        );
-        let r = r1 + r2 * b.cos();
-        [r * a.cos(), r2 * b.sin(), r * a.sin()]
-    })
-    .orient_outward()
+/// The point of the torus with radii 1 (tube centre) and 0.4 (tube) at parameters (u, v).
+pub fn torus_point(u: f64, v: f64) -> [f64; 3] {
+    let (a, b) = (
+        2.0 * std::f64::consts::PI * u,
+        2.0 * std::f64::consts::PI * v,
+    );
+    let r = 1.0 + 0.4 * b.cos();
+    [r * a.cos(), 0.4 * b.sin(), r * a.sin()]
+}
+
+/// A torus tessellated with `nu` × `nv` cells, the grid shifted by `phase` in (u, v).
+pub fn torus(nu: usize, nv: usize, phase: (f64, f64)) -> MeshData {
+    grid(nu, nv, |u, v| torus_point(u + phase.0, v + phase.1)).orient_outward()
 }
 
 /// A disc of radius 1 in the xz plane (polar grid, `nr` rings × `na` sectors, the innermost
