@@ -132,7 +132,7 @@ pub fn texture_png(w: u32, h: u32, color: impl Fn(f64, f64) -> [f64; 3]) -> Vec<
 }
 
 fn push_aligned(bin: &mut Vec<u8>, bytes: &[u8]) -> (usize, usize) {
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     let at = bin.len();
@@ -197,7 +197,7 @@ pub fn mesh_glb(mesh: &MeshData, png: Option<&[u8]>, node_scale: f64) -> Vec<u8>
         doc["textures"] = json!([{"source": 0}]);
         doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = json!({"index": 0});
     }
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     doc["bufferViews"] = json!(views);
