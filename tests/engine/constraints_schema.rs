@@ -177,10 +177,13 @@ fn shared_options_have_one_definition() {
     }
 }
 
+/// (Three correspondences are given: elastiface's check refuses fewer, whatever the params.)
 fn check(method: MethodId, params: Value) -> Result<(), String> {
-    let c: Constraints =
-        serde_json::from_value(json!({"version": 1, "method": method.as_str(), "params": params}))
-            .unwrap();
+    let p =
+        |x: f64| json!({"source": {"point": [x, 0.0, 0.0]}, "target": {"point": [x, 0.0, 0.0]}});
+    let c: Constraints = serde_json::from_value(json!({"version": 1, "method": method.as_str(),
+        "params": params, "correspondences": [p(0.0), p(1.0), p(2.0)]}))
+    .unwrap();
     let m = Registry::builtin().get(method).unwrap();
     m.check(&c)
         .map_err(|e| format!("{}: {}", e.path, e.message))

@@ -11,10 +11,14 @@
 #[path = "../common/mod.rs"]
 mod common;
 mod common_geometry;
+mod elastiface_common;
 mod meshmatch_common;
 
 mod color_output;
 mod constraints_schema;
+mod elastiface;
+mod elastiface_real;
+mod elastiface_shapes;
 mod fuzz_ingest;
 mod geodesic_fans;
 mod geometry_core;

@@ -240,7 +240,7 @@ async fn bad_constraints_fail_with_a_problem_naming_the_field() {
         &env,
         &runner,
         SPOT,
-        r#"{"version":1,"method":"elastiface"}"#,
+        r#"{"version":1,"method":"correlation"}"#,
     );
 
     let j = wait_terminal(&env, bad_type).await;

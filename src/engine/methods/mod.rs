@@ -17,6 +17,7 @@
 pub mod align;
 pub mod color_output;
 pub mod correspondence;
+pub mod elastiface;
 pub mod meshmatch;
 pub mod output;
 pub mod params;
@@ -54,7 +55,11 @@ impl Registry {
     /// Every method retex implements: one line per method.
     pub fn builtin() -> Self {
         Self {
-            methods: vec![&project::Project, &meshmatch::MeshMatch],
+            methods: vec![
+                &project::Project,
+                &meshmatch::MeshMatch,
+                &elastiface::Elastiface,
+            ],
         }
     }
 

@@ -1,0 +1,288 @@
+//! Non-rigid registration (§3.3, eqs. 6-8) of the source onto the target, first between the base
+//! meshes, then between the originals. The source vertices `x` minimise
+//!
+//! `μ1/ΣÂ Σ Â_i ‖Δ(x_i − x̂_i)‖² + μ2/n Σ ‖x_i − c_i‖² + μ3/K Σ w_k ‖r_k^s − r̂_k^t‖²`
+//!
+//! with `Δ` the cotan Laplacian of the *original* source divided by the areas `Â` (those of the
+//! rest shape `x̂`), `c_i` the closest point of `x_i` on the target (exact point-triangle distance
+//! through the BVH), `r̂^t` the reference points on the target and `K = Σ w_k`. The normal
+//! equations `(μ1/ΣÂ Lᵀ Â⁻¹ L + μ2/n I + μ3/K Σ w BᵀB) x = μ1/ΣÂ Lᵀ Â⁻¹ L x̂ + μ2/n c + μ3/K Σ w Bᵀ r̂`
+//! share one pattern for both stages, so one symbolic analysis serves every solve; the matrix
+//! changes only with the weights, so it is factorised once per stiffness and the ICP updates of
+//! `c` only re-solve.
+//!
+//! Schedules (ours where the paper gives ranges): base meshes with `μ1 = 10 → 1 → 0.1`,
+//! `μ2 = 1`, `μ3 = 10` and `per_stiffness` (default 3) closest-point updates each, 9 solves in
+//! all (the paper: "about 10"; its §6 timing mentions five). Originals: `μ2 = 300`,
+//! `μ1 = μ3 = 0.1`, bending relative to the original source, the first solve using the base
+//! stage's last closest points carried to the original target as (triangle, barycentric), each
+//! further one (default 2 solves in all) recomputing them on the original target.
+
+use rayon::prelude::*;
+
+use crate::engine::control::Control;
+use crate::engine::linalg::{NumericCholesky, SparsityPattern, SymbolicCholesky};
+use crate::engine::spatial::Bvh;
+use std::sync::Arc;
+
+use super::refs::{RefPair, RefRow};
+use super::system::{voronoi_areas, LapRows, PatternBuilder, Values};
+use super::MethodError;
+
+/// Closest points of the source vertices on a target: per vertex (target face, barycentric).
+pub type Closest = Vec<(u32, [f32; 3])>;
+
+/// A target surface to fit to.
+pub struct FitTarget<'a> {
+    /// Positions.
+    pub x: &'a [[f64; 3]],
+    /// Faces.
+    pub faces: &'a [[u32; 3]],
+    /// BVH over `x` (as f32) and `faces`.
+    pub bvh: &'a Bvh,
+}
+
+impl FitTarget<'_> {
+    /// The closest point of every `p` (parallel; independent of the thread count).
+    pub fn closest(&self, points: &[[f64; 3]]) -> Closest {
+        points
+            .par_iter()
+            .map(|p| {
+                let q = p.map(|c| c as f32);
+                self.bvh
+                    .closest_point(q, f32::INFINITY)
+                    .map_or((0, [1.0, 0.0, 0.0]), |h| (h.face, h.bary))
+            })
+            .collect()
+    }
+
+    /// Positions of (face, barycentric) points.
+    pub fn points(&self, closest: &Closest) -> Vec<[f64; 3]> {
+        closest
+            .iter()
+            .map(|&(f, b)| RefRow::face(self.faces[f as usize], b).eval(self.x))
+            .collect()
+    }
+}
+
+/// The registration system of one source mesh: pattern and symbolic analysis.
+pub struct Registration<'a> {
+    lap: &'a LapRows,
+    faces: &'a [[u32; 3]],
+    pairs: &'a [RefPair],
+    pattern: Arc<SparsityPattern>,
+    symbolic: SymbolicCholesky,
+    k_total: f64,
+}
+
+/// The weights of one stiffness level.
+#[derive(Clone, Copy, Debug)]
+pub struct Mu {
+    /// Bending μ1.
+    pub bend: f64,
+    /// Fitting μ2.
+    pub fit: f64,
+    /// Reference points μ3.
+    pub refs: f64,
+}
+
+/// What a registration stage did.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct StageReport {
+    /// Linear solves (closest-point updates).
+    pub solves: usize,
+    /// Numeric factorisations.
+    pub factorisations: usize,
+    /// RMS distance of the source vertices to their last closest points, in output units.
+    pub rms_fit: f64,
+}
+
+impl<'a> Registration<'a> {
+    /// Builds the pattern (two-rings of the source plus reference cliques) and analyses it.
+    ///
+    /// # Errors
+    /// [`MethodError::Internal`] if the analysis fails.
+    pub fn new(
+        lap: &'a LapRows,
+        faces: &'a [[u32; 3]],
+        pairs: &'a [RefPair],
+    ) -> Result<Self, MethodError> {
+        let mut pb = PatternBuilder::new(lap.len());
+        pb.bilaplacian(lap, 0);
+        for p in pairs {
+            pb.reference(&[(p.source, 0)]);
+        }
+        let pattern = pb.build()?;
+        let symbolic = SymbolicCholesky::new(pattern.clone())
+            .map_err(|e| MethodError::Internal(format!("registration analysis: {e}")))?;
+        Ok(Self {
+            lap,
+            faces,
+            pairs,
+            pattern,
+            symbolic,
+            k_total: pairs
+                .iter()
+                .map(|p| p.weight)
+                .sum::<f64>()
+                .max(f64::MIN_POSITIVE),
+        })
+    }
+
+    fn factor(&self, areas: &[f64], mu: Mu) -> Result<NumericCholesky, MethodError> {
+        let n = self.lap.len();
+        let total: f64 = areas.iter().sum();
+        let mut v = Values::zeros(&self.pattern);
+        v.add_bilaplacian(self.lap, areas, 0, mu.bend / total);
+        for i in 0..n {
+            v.add(i, i, mu.fit / n as f64);
+        }
+        for p in self.pairs {
+            v.add_outer(&p.source.entries(0), mu.refs * p.weight / self.k_total);
+        }
+        self.symbolic
+            .factor(&v.into_matrix()?)
+            .map_err(|e| MethodError::Internal(format!("registration factorisation: {e}")))
+    }
+
+    /// The right-hand side without the fitting term.
+    fn fixed_rhs(
+        &self,
+        rest: &[[f64; 3]],
+        areas: &[f64],
+        target_refs: &[[f64; 3]],
+        mu: Mu,
+    ) -> Vec<Vec<f64>> {
+        let n = self.lap.len();
+        let total: f64 = areas.iter().sum();
+        let inv: Vec<f64> = areas.iter().map(|a| mu.bend / total / a).collect();
+        let mut rhs: Vec<Vec<f64>> = (0..3)
+            .map(|d| {
+                let x: Vec<f64> = rest.iter().map(|p| p[d]).collect();
+                self.lap.bilaplacian_mul(&inv, &x)
+            })
+            .collect();
+        for (p, r) in self.pairs.iter().zip(target_refs) {
+            let w = mu.refs * p.weight / self.k_total;
+            for (i, a) in p.source.entries(0) {
+                (0..3).for_each(|d| rhs[d][i] += w * a * r[d]);
+            }
+        }
+        debug_assert_eq!(rhs[0].len(), n);
+        rhs
+    }
+
+    fn solve(
+        &self,
+        factor: &NumericCholesky,
+        fixed: &[Vec<f64>],
+        fit: &[[f64; 3]],
+        mu: Mu,
+    ) -> Result<Vec<[f64; 3]>, MethodError> {
+        let n = self.lap.len();
+        let w = mu.fit / n as f64;
+        let mut rhs: Vec<Vec<f64>> = (0..3)
+            .map(|d| {
+                fixed[d]
+                    .iter()
+                    .zip(fit)
+                    .map(|(b, c)| b + w * c[d])
+                    .collect()
+            })
+            .collect();
+        factor
+            .solve_many(&mut rhs)
+            .map_err(|e| MethodError::Internal(format!("registration solve: {e}")))?;
+        Ok((0..n).map(|i| [rhs[0][i], rhs[1][i], rhs[2][i]]).collect())
+    }
+
+    /// §3.3 on the base meshes: from `rest = B^s`, fit to `target = B^t`. Returns the fitted
+    /// positions and their last closest points on the target.
+    ///
+    /// # Errors
+    /// [`MethodError::Internal`], [`MethodError::Cancelled`].
+    pub fn base(
+        &self,
+        rest: &[[f64; 3]],
+        target: &FitTarget<'_>,
+        per_stiffness: usize,
+        control: &Control,
+    ) -> Result<(Vec<[f64; 3]>, Closest, StageReport), MethodError> {
+        let areas = voronoi_areas(rest, self.faces)?;
+        let target_refs: Vec<[f64; 3]> =
+            self.pairs.iter().map(|p| p.target.eval(target.x)).collect();
+        let mut x = rest.to_vec();
+        let mut report = StageReport::default();
+        let work = control.stage("registration", 3 * per_stiffness as u64)?;
+        for bend in [10.0, 1.0, 0.1] {
+            let mu = Mu {
+                bend,
+                fit: 1.0,
+                refs: 10.0,
+            };
+            let factor = self.factor(&areas, mu)?;
+            report.factorisations += 1;
+            let fixed = self.fixed_rhs(rest, &areas, &target_refs, mu);
+            for _ in 0..per_stiffness {
+                let c = target.points(&target.closest(&x));
+                x = self.solve(&factor, &fixed, &c, mu)?;
+                report.solves += 1;
+                work.tick(1)?;
+            }
+        }
+        let closest = target.closest(&x);
+        report.rms_fit = rms(&x, &target.points(&closest));
+        Ok((x, closest, report))
+    }
+
+    /// §3.3, last paragraph: the originals. `rest` is the original source, `carried` the base
+    /// stage's closest points as (face, barycentric) on the original target.
+    ///
+    /// # Errors
+    /// [`MethodError::Internal`], [`MethodError::Cancelled`].
+    pub fn originals(
+        &self,
+        rest: &[[f64; 3]],
+        target: &FitTarget<'_>,
+        carried: &Closest,
+        solves: usize,
+        control: &Control,
+    ) -> Result<(Vec<[f64; 3]>, StageReport), MethodError> {
+        let areas = voronoi_areas(rest, self.faces)?;
+        let target_refs: Vec<[f64; 3]> =
+            self.pairs.iter().map(|p| p.target.eval(target.x)).collect();
+        let mu = Mu {
+            bend: 0.1,
+            fit: 300.0,
+            refs: 0.1,
+        };
+        let work = control.stage("registration_originals", solves as u64)?;
+        let factor = self.factor(&areas, mu)?;
+        let fixed = self.fixed_rhs(rest, &areas, &target_refs, mu);
+        let mut report = StageReport {
+            factorisations: 1,
+            ..Default::default()
+        };
+        let mut c = target.points(carried);
+        let mut x = rest.to_vec();
+        for s in 0..solves {
+            if s > 0 {
+                c = target.points(&target.closest(&x));
+            }
+            x = self.solve(&factor, &fixed, &c, mu)?;
+            report.solves += 1;
+            work.tick(1)?;
+        }
+        report.rms_fit = rms(&x, &target.points(&target.closest(&x)));
+        Ok((x, report))
+    }
+}
+
+fn rms(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
+    let s: f64 = a
+        .iter()
+        .zip(b)
+        .map(|(p, q)| (0..3).map(|d| (p[d] - q[d]).powi(2)).sum::<f64>())
+        .sum();
+    (s / a.len().max(1) as f64).sqrt()
+}

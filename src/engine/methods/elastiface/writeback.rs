@@ -1,0 +1,241 @@
+//! The output: the fitted shape written into the source asset (issue 10, "Interface").
+//!
+//! Every source primitive keeps its vertex count, order, indices and UVs. A vertex's new world
+//! position is that of its welded surface vertex (so split UV-seam vertices move together),
+//! brought into the primitive's mesh-local frame through the inverse of its node's world
+//! transform. NORMAL (where present) is recomputed from the fitted welded surface (area-weighted
+//! face normals) and carried to local space with the transpose of the node's linear part; a
+//! TANGENT no longer fits and is removed (the viewer regenerates it). A vertex that lies on no
+//! surviving (non-degenerate) face (e.g. the corner of a triangle dropped as degenerate) has no
+//! welded vertex: it moves with the closest point of the source surface (same face and
+//! barycentric coordinates on the fitted surface).
+//!
+//! With `output = "morph_target"` POSITION is kept and one morph target `elastiface` (default
+//! weight 0, so the rig's neutral shape is unchanged) holds the mesh-local displacement in the
+//! source's own frame: the inverse of the initial similarity is applied first, so the blend shape
+//! does not move or scale the head. Existing morph targets are kept (export extends `weights`).
+//!
+//! A mesh instanced by two nodes cannot hold two fitted shapes: it is refused.
+
+use std::collections::HashMap;
+
+use crate::engine::asset::edits::{AttributeData, Edit, MorphDeltas};
+use crate::engine::asset::{Asset, MeshInstance};
+use crate::engine::math::{cross, normalize, sub};
+use crate::engine::mesh::Surface;
+
+use super::MethodError;
+
+/// Per primitive, per vertex: the welded vertex of the (first) instance, or `u32::MAX`.
+pub fn welded_map(asset: &Asset, surface: &Surface) -> Vec<Vec<u32>> {
+    let mut map: Vec<Vec<u32>> = asset
+        .primitives
+        .iter()
+        .map(|p| vec![u32::MAX; p.positions.len()])
+        .collect();
+    for (face, corners) in surface.faces.iter().zip(&surface.corners) {
+        for k in 0..3 {
+            let c = corners[k];
+            if let Some(slot) = map[c.primitive as usize].get_mut(c.vertex as usize) {
+                *slot = face[k];
+            }
+        }
+    }
+    map
+}
+
+/// Refuses a source whose mesh is instanced by more than one node.
+///
+/// # Errors
+/// [`MethodError::UnusableInput`] naming the mesh and the nodes.
+pub fn check_single_instances(asset: &Asset) -> Result<(), MethodError> {
+    let mut seen: HashMap<usize, usize> = HashMap::new();
+    for inst in &asset.instances {
+        if let Some(first) = seen.insert(inst.mesh, inst.node) {
+            return Err(MethodError::UnusableInput {
+                field: Some("source".into()),
+                kind: "instanced-mesh",
+                message: format!(
+                    "source mesh {} is instanced by nodes {first} and {}: elastiface writes one \
+                     fitted shape per mesh and cannot fit two placements of it",
+                    inst.mesh, inst.node
+                ),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// A 3x4 affine map stored row-major (`[linear | translation]`).
+#[derive(Clone, Copy, Debug)]
+struct Affine {
+    m: [[f64; 3]; 3],
+    t: [f64; 3],
+}
+
+impl Affine {
+    fn of(inst: &MeshInstance) -> Self {
+        let w = &inst.world;
+        Self {
+            m: std::array::from_fn(|r| std::array::from_fn(|c| w[c][r])),
+            t: [w[3][0], w[3][1], w[3][2]],
+        }
+    }
+
+    fn inverse(&self) -> Option<Self> {
+        let a = &self.m;
+        let det = a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1])
+            - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
+            + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0]);
+        if det.abs() < 1e-300 || !det.is_finite() {
+            return None;
+        }
+        let c = |r: usize, k: usize| {
+            let (r1, r2) = ((r + 1) % 3, (r + 2) % 3);
+            let (k1, k2) = ((k + 1) % 3, (k + 2) % 3);
+            a[r1][k1] * a[r2][k2] - a[r1][k2] * a[r2][k1]
+        };
+        let m: [[f64; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|k| c(k, r) / det));
+        let t = std::array::from_fn(|r| -(0..3).map(|k| m[r][k] * self.t[k]).sum::<f64>());
+        Some(Self { m, t })
+    }
+
+    fn apply(&self, p: [f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|r| (0..3).map(|k| self.m[r][k] * p[k]).sum::<f64>() + self.t[r])
+    }
+
+    /// `Mᵀ n`: a world normal carried to local space (for `M` local → world).
+    fn normal_to_local(&self, n: [f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|r| (0..3).map(|k| self.m[k][r] * n[k]).sum::<f64>())
+    }
+}
+
+/// Area-weighted vertex normals of positions with faces.
+fn vertex_normals(x: &[[f64; 3]], faces: &[[u32; 3]]) -> Vec<[f64; 3]> {
+    let mut n = vec![[0.0; 3]; x.len()];
+    for f in faces {
+        let p = f.map(|v| x[v as usize]);
+        let c = cross(sub(p[1], p[0]), sub(p[2], p[0]));
+        for &v in f {
+            for d in 0..3 {
+                n[v as usize][d] += c[d];
+            }
+        }
+    }
+    n
+}
+
+/// What to write: fitted world positions, or the morph form.
+pub struct Placement<'a> {
+    /// Fitted welded positions, world frame of the target.
+    pub fitted: &'a [[f64; 3]],
+    /// Welded faces.
+    pub faces: &'a [[u32; 3]],
+    /// Per primitive, per vertex: welded vertex.
+    pub welded: &'a [Vec<u32>],
+    /// Target world frame → source world frame (the inverse of the initial similarity).
+    pub to_source_frame: &'a dyn Fn([f64; 3]) -> [f64; 3],
+    /// A source world point → its fitted position (through the closest source surface point),
+    /// for vertices on no face.
+    pub follow_surface: &'a dyn Fn([f64; 3]) -> [f64; 3],
+    /// Write a morph target instead of POSITION.
+    pub morph: bool,
+}
+
+/// The geometry edits (POSITION, NORMAL, TANGENT removal, or the morph target).
+///
+/// # Errors
+/// [`MethodError::UnusableInput`] for a node transform that cannot be inverted.
+pub fn geometry_edits(source: &Asset, place: &Placement<'_>) -> Result<Vec<Edit>, MethodError> {
+    let normals = vertex_normals(place.fitted, place.faces);
+    let mut edits = Vec::new();
+    let mut morphs: Vec<(usize, Vec<MorphDeltas>)> = Vec::new();
+    for inst in &source.instances {
+        let to_world = Affine::of(inst);
+        let to_local = to_world
+            .inverse()
+            .ok_or_else(|| MethodError::UnusableInput {
+                field: Some("source".into()),
+                kind: "unusable-mesh",
+                message: format!("node {} has a singular transform", inst.node),
+            })?;
+        let mut deltas = Vec::new();
+        for p in source.primitives_of_mesh(inst.mesh) {
+            let prim = &source.primitives[p];
+            let map = &place.welded[p];
+            let world_fitted = |v: usize| -> [f64; 3] {
+                match map[v] {
+                    u32::MAX => (place.follow_surface)(inst.transform_point(prim.positions[v])),
+                    w => place.fitted[w as usize],
+                }
+            };
+            if place.morph {
+                let d = (0..prim.positions.len())
+                    .map(|v| {
+                        let local = to_local.apply((place.to_source_frame)(world_fitted(v)));
+                        std::array::from_fn(|k| (local[k] - prim.positions[v][k] as f64) as f32)
+                    })
+                    .collect();
+                deltas.push(MorphDeltas {
+                    primitive: p,
+                    positions: d,
+                    normals: None,
+                });
+                continue;
+            }
+            let pos: Vec<[f32; 3]> = (0..prim.positions.len())
+                .map(|v| to_local.apply(world_fitted(v)).map(|c| c as f32))
+                .collect();
+            edits.push(Edit::SetAttribute {
+                primitive: p,
+                name: "POSITION".into(),
+                data: AttributeData::Vec3(pos),
+            });
+            if let Some(old) = &prim.normals {
+                let n: Vec<[f32; 3]> = (0..prim.positions.len())
+                    .map(|v| match map[v] {
+                        u32::MAX => old[v],
+                        w => {
+                            let n = normalize(to_world.normal_to_local(normals[w as usize]));
+                            if n.iter().all(|c| c.is_finite()) && n != [0.0; 3] {
+                                n.map(|c| c as f32)
+                            } else {
+                                old[v]
+                            }
+                        }
+                    })
+                    .collect();
+                edits.push(Edit::SetAttribute {
+                    primitive: p,
+                    name: "NORMAL".into(),
+                    data: AttributeData::Vec3(n),
+                });
+            }
+            if has_tangents(source, p) {
+                edits.push(Edit::RemoveAttribute {
+                    primitive: p,
+                    name: "TANGENT".into(),
+                });
+            }
+        }
+        if place.morph {
+            morphs.push((inst.mesh, deltas));
+        }
+    }
+    for (mesh, deltas) in morphs {
+        edits.push(Edit::AddMorphTarget {
+            mesh,
+            name: "elastiface".into(),
+            weight: 0.0,
+            deltas,
+        });
+    }
+    Ok(edits)
+}
+
+fn has_tangents(asset: &Asset, p: usize) -> bool {
+    let prim = &asset.primitives[p];
+    asset.json["meshes"][prim.mesh]["primitives"][prim.primitive]["attributes"]
+        .get("TANGENT")
+        .is_some()
+}

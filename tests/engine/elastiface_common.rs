@@ -1,0 +1,247 @@
+//! Builders for the `elastiface` tests: parametric meshes with UVs (spheres, tori, discs) written
+//! as GLBs with an optional base-colour texture, the transfer runner, and readers of the result.
+#![allow(dead_code)]
+
+use retex::engine::asset::constraints::Constraints;
+use retex::engine::asset::{Asset, BlobSet};
+use retex::engine::control::Control;
+use retex::engine::pipeline::{transfer, ModelInput, TransferError, TransferInput, TransferOutput};
+use retex::engine::texture::encode::encode_png_srgb;
+use serde_json::json;
+
+use crate::common::{glb, load_bytes};
+
+/// An indexed triangle mesh with optional UVs.
+#[derive(Clone, Debug)]
+pub struct MeshData {
+    pub positions: Vec<[f32; 3]>,
+    pub uvs: Option<Vec<[f32; 2]>>,
+    pub indices: Vec<u32>,
+}
+
+impl MeshData {
+    /// The same mesh with every position mapped.
+    pub fn mapped(&self, f: impl Fn([f64; 3]) -> [f64; 3]) -> Self {
+        let mut out = self.clone();
+        for p in &mut out.positions {
+            *p = f(p.map(f64::from)).map(|c| c as f32);
+        }
+        out
+    }
+
+    /// Flips every triangle if the mesh's signed volume is negative (outward normals, CCW).
+    fn orient_outward(mut self) -> Self {
+        let mut vol = 0.0f64;
+        for t in self.indices.chunks(3) {
+            let p = [t[0], t[1], t[2]].map(|i| self.positions[i as usize].map(f64::from));
+            vol += p[0][0] * (p[1][1] * p[2][2] - p[1][2] * p[2][1])
+                - p[0][1] * (p[1][0] * p[2][2] - p[1][2] * p[2][0])
+                + p[0][2] * (p[1][0] * p[2][1] - p[1][1] * p[2][0]);
+        }
+        if vol < 0.0 {
+            for t in self.indices.chunks_mut(3) {
+                t.swap(1, 2);
+            }
+        }
+        self
+    }
+}
+
+/// A grid over (u, v) in [0,1]² with seam duplicates, mapped through `param`; `closed_u` adds
+/// the seam column. Triangles are oriented by `orient` (outward for closed surfaces).
+fn grid(nu: usize, nv: usize, param: impl Fn(f64, f64) -> [f64; 3]) -> MeshData {
+    let mut positions = Vec::new();
+    let mut uvs = Vec::new();
+    for j in 0..=nv {
+        for i in 0..=nu {
+            let (u, v) = (i as f64 / nu as f64, j as f64 / nv as f64);
+            positions.push(param(u, v).map(|c| c as f32));
+            uvs.push([u as f32, v as f32]);
+        }
+    }
+    let id = |i: usize, j: usize| (j * (nu + 1) + i) as u32;
+    let mut indices = Vec::new();
+    for j in 0..nv {
+        for i in 0..nu {
+            indices.extend([id(i, j), id(i, j + 1), id(i + 1, j + 1)]);
+            indices.extend([id(i, j), id(i + 1, j + 1), id(i + 1, j)]);
+        }
+    }
+    MeshData {
+        positions,
+        uvs: Some(uvs),
+        indices,
+    }
+}
+
+/// The unit sphere point at (u, v): longitude 2πu, colatitude πv.
+pub fn sphere_point(u: f64, v: f64) -> [f64; 3] {
+    let (t, p) = (std::f64::consts::PI * v, 2.0 * std::f64::consts::PI * u);
+    [t.sin() * p.cos(), t.cos(), -t.sin() * p.sin()]
+}
+
+/// A UV sphere (`nu` × `nv` cells) whose points are `rot(sphere_point)`.
+pub fn uv_sphere(nu: usize, nv: usize, rot: impl Fn([f64; 3]) -> [f64; 3]) -> MeshData {
+    grid(nu, nv, |u, v| rot(sphere_point(u, v))).orient_outward()
+}
+
+/// The point of the torus with radii 1 (tube centre) and 0.4 (tube) at parameters (u, v).
+pub fn torus_point(u: f64, v: f64) -> [f64; 3] {
+    let (a, b) = (
+        2.0 * std::f64::consts::PI * u,
+        2.0 * std::f64::consts::PI * v,
+    );
+    let r = 1.0 + 0.4 * b.cos();
+    [r * a.cos(), 0.4 * b.sin(), r * a.sin()]
+}
+
+/// A torus tessellated with `nu` × `nv` cells, the grid shifted by `phase` in (u, v).
+pub fn torus(nu: usize, nv: usize, phase: (f64, f64)) -> MeshData {
+    grid(nu, nv, |u, v| torus_point(u + phase.0, v + phase.1)).orient_outward()
+}
+
+/// A disc of radius 1 in the xz plane (polar grid, `nr` rings × `na` sectors, the innermost
+/// ring collapsed to the centre), normal +y, starting at angle `a0`.
+pub fn disc(nr: usize, na: usize, a0: f64) -> MeshData {
+    let mut m = grid(na, nr, |u, v| {
+        let a = a0 + 2.0 * std::f64::consts::PI * u;
+        [v * a.cos(), 0.0, -v * a.sin()]
+    });
+    let p = |i: u32| m.positions[i as usize];
+    let k = 3 * (2 * na); // a triangle of the second ring (the first ones are degenerate)
+    let (a, b, c) = (p(m.indices[k]), p(m.indices[k + 1]), p(m.indices[k + 2]));
+    let ny = (b[2] - a[2]) * (c[0] - a[0]) - (b[0] - a[0]) * (c[2] - a[2]);
+    if ny < 0.0 {
+        for t in m.indices.chunks_mut(3) {
+            t.swap(1, 2);
+        }
+    }
+    m
+}
+
+/// A `w × h` texture whose texel (x, y) has linear colour `color(u, v)` at its centre.
+pub fn texture_png(w: u32, h: u32, color: impl Fn(f64, f64) -> [f64; 3]) -> Vec<u8> {
+    let px: Vec<[f32; 4]> = (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            let c = color((x as f64 + 0.5) / w as f64, (y as f64 + 0.5) / h as f64);
+            [c[0] as f32, c[1] as f32, c[2] as f32, 1.0]
+        })
+        .collect();
+    encode_png_srgb(&px, w, h)
+}
+
+fn push_aligned(bin: &mut Vec<u8>, bytes: &[u8]) -> (usize, usize) {
+    while !bin.len().is_multiple_of(4) {
+        bin.push(0);
+    }
+    let at = bin.len();
+    bin.extend_from_slice(bytes);
+    (at, bytes.len())
+}
+
+/// A GLB of one mesh (one primitive, one node with `scale`), with a base-colour texture when
+/// `png` is given.
+pub fn mesh_glb(mesh: &MeshData, png: Option<&[u8]>, node_scale: f64) -> Vec<u8> {
+    let mut bin = Vec::new();
+    let pos: Vec<u8> = mesh
+        .positions
+        .iter()
+        .flatten()
+        .flat_map(|c| c.to_le_bytes())
+        .collect();
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for p in &mesh.positions {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let mut views = vec![];
+    let mut accessors = vec![];
+    let (o, l) = push_aligned(&mut bin, &pos);
+    views.push(json!({"buffer": 0, "byteOffset": o, "byteLength": l, "target": 34962}));
+    accessors.push(
+        json!({"bufferView": 0, "componentType": 5126, "count": mesh.positions.len(),
+        "type": "VEC3", "min": lo, "max": hi}),
+    );
+    let mut attributes = json!({"POSITION": 0});
+    if let Some(uvs) = &mesh.uvs {
+        let b: Vec<u8> = uvs.iter().flatten().flat_map(|c| c.to_le_bytes()).collect();
+        let (o, l) = push_aligned(&mut bin, &b);
+        views.push(json!({"buffer": 0, "byteOffset": o, "byteLength": l, "target": 34962}));
+        accessors.push(json!({"bufferView": views.len() - 1, "componentType": 5126,
+            "count": uvs.len(), "type": "VEC2"}));
+        attributes["TEXCOORD_0"] = json!(accessors.len() - 1);
+    }
+    let b: Vec<u8> = mesh.indices.iter().flat_map(|c| c.to_le_bytes()).collect();
+    let (o, l) = push_aligned(&mut bin, &b);
+    views.push(json!({"buffer": 0, "byteOffset": o, "byteLength": l, "target": 34963}));
+    accessors.push(json!({"bufferView": views.len() - 1, "componentType": 5125,
+        "count": mesh.indices.len(), "type": "SCALAR"}));
+    let indices = accessors.len() - 1;
+    let mut doc = json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0, "scale": [node_scale, node_scale, node_scale]}],
+        "meshes": [{"primitives": [{"attributes": attributes, "indices": indices, "material": 0}]}],
+        "materials": [{"pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0]}}],
+        "accessors": accessors,
+    });
+    if let Some(png) = png {
+        let (o, l) = push_aligned(&mut bin, png);
+        views.push(json!({"buffer": 0, "byteOffset": o, "byteLength": l}));
+        doc["images"] = json!([{"bufferView": views.len() - 1, "mimeType": "image/png"}]);
+        doc["textures"] = json!([{"source": 0}]);
+        doc["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"] = json!({"index": 0});
+    }
+    while !bin.len().is_multiple_of(4) {
+        bin.push(0);
+    }
+    doc["bufferViews"] = json!(views);
+    doc["buffers"] = json!([{"byteLength": bin.len()}]);
+    glb(&doc, &bin)
+}
+
+/// Runs a transfer between two GLBs in memory.
+pub fn run_glbs(
+    source: &[u8],
+    target: &[u8],
+    constraints: serde_json::Value,
+) -> Result<TransferOutput, TransferError> {
+    let c = Constraints::from_json(constraints.to_string().as_bytes())?;
+    let mut sb = BlobSet::new();
+    sb.insert("source.glb", source.to_vec());
+    let mut tb = BlobSet::new();
+    tb.insert("target.glb", target.to_vec());
+    let input = TransferInput::pair(
+        ModelInput {
+            main: "source.glb",
+            blobs: &sb,
+        },
+        ModelInput {
+            main: "target.glb",
+            blobs: &tb,
+        },
+        c,
+    );
+    transfer(&input, &Control::new())
+}
+
+/// The output model as an asset.
+pub fn output_asset(out: &TransferOutput) -> Asset {
+    load_bytes(&out.model, "out.glb")
+}
+
+/// Linear → sRGB 8-bit.
+pub fn srgb8(c: f64) -> u8 {
+    let c = c.clamp(0.0, 1.0);
+    let s = if c <= 0.003_130_8 {
+        12.92 * c
+    } else {
+        1.055 * c.powf(1.0 / 2.4) - 0.055
+    };
+    (s * 255.0).round() as u8
+}
