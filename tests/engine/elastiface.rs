@@ -242,7 +242,7 @@ fn elastiface_bump_and_stretch_beats_snapping() {
         "bump: psnr {psnr:.2}; map error mean {mean:.5} max {max:.5}; snapping mean {base_mean:.5} max {base_max:.5}; {} \
          hausdorff {h:.5}; flipped {flipped:.2e}; residual max {res:.5}; timings {}",
         r["hausdorff"],
-        r["timings_ms"]
+        stage_timings(&out.report.timings)
     );
     // Every output vertex (also those of triangles dropped as degenerate at the poles) lies on
     // the target.

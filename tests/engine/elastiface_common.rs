@@ -245,3 +245,12 @@ pub fn srgb8(c: f64) -> u8 {
     };
     (s * 255.0).round() as u8
 }
+
+/// The stage timings of a transfer (recorded by `Control`), as `name ms` pairs for a log line.
+pub fn stage_timings(timings: &[retex::engine::control::StageTiming]) -> String {
+    timings
+        .iter()
+        .map(|t| format!("{} {:.0} ms", t.stage, t.ms))
+        .collect::<Vec<_>>()
+        .join(", ")
+}

@@ -159,7 +159,7 @@ fn elastiface_deformed_head_back_onto_the_textured_head() {
     eprintln!(
         "head: map error mean {mean:.5} (snapping {base_mean:.5}); hausdorff {h:.5}; flipped \
          {flipped:.2e}; psnr {psnr:.2} dB; {secs:.2} s end to end; timings {}",
-        r["timings_ms"]
+        stage_timings(&out.report.timings)
     );
     assert!(
         mean < 0.6 * base_mean, // measured ratio 0.50

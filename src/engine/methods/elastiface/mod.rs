@@ -33,8 +33,6 @@ pub mod system;
 pub mod texture;
 pub mod writeback;
 
-use std::time::Instant;
-
 use serde::Serialize;
 
 use super::align::{best_similarity, Similarity};
@@ -108,8 +106,6 @@ pub struct ElastifaceReport {
     pub textures: Vec<TextureReport>,
     /// Primitives that received COLOR_0 through the shared vertex path.
     pub vertex_colors: Vec<VertexColorReport>,
-    /// Wall-clock milliseconds per step.
-    pub timings_ms: Vec<(String, f64)>,
     /// Things the user should know.
     pub warnings: Vec<String>,
 }
@@ -151,18 +147,6 @@ impl Method for Elastiface {
     }
 }
 
-/// Wall-clock timings of the steps.
-struct Clock(Vec<(String, f64)>, Instant);
-
-impl Clock {
-    fn lap(&mut self, name: &str) {
-        let now = Instant::now();
-        self.0
-            .push((name.into(), (now - self.1).as_secs_f64() * 1000.0));
-        self.1 = now;
-    }
-}
-
 fn surface_of(
     asset: &Asset,
     weld: &WeldParams,
@@ -187,7 +171,6 @@ pub fn run(
     params: &ElastifaceParams,
     control: &Control,
 ) -> Result<(Vec<Edit>, ElastifaceReport), MethodError> {
-    let mut clock = Clock(Vec::new(), Instant::now());
     refs::check_correspondences(constraints)?;
     writeback::check_single_instances(source)?;
     let weld = WeldParams {
@@ -199,7 +182,6 @@ pub fn run(
     let tgt = surface_of(target, &weld, "target")?;
     let src_bvh = Bvh::build(&src.positions, &src.faces);
     let tgt_bvh = Bvh::build(&tgt.positions, &tgt.faces);
-    clock.lap("surface");
 
     control.stage("correspondences", 0)?;
     let resolved = resolve_on_surfaces(
@@ -249,7 +231,6 @@ pub fn run(
     let mut pairs = hand.clone();
     pairs.extend(derived);
     let residuals_initial = metrics::residuals(&hand, &xs, &xt, ref_diag);
-    clock.lap("correspondences");
     drop(span);
 
     let span = control.span(0.05, 0.5);
@@ -284,7 +265,6 @@ pub fn run(
             100.0 * faired.area_ratio
         ));
     }
-    clock.lap("fairing");
 
     let reg = register::Registration::new(&lap_s, &src.faces, &pairs)?;
     let bt32: Vec<[f32; 3]> = faired.target.iter().map(|p| p.map(|c| c as f32)).collect();
@@ -300,7 +280,6 @@ pub fn run(
         params.registration_iterations,
         control,
     )?;
-    clock.lap("registration");
     let xt32: Vec<[f32; 3]> = xt.iter().map(|p| p.map(|c| c as f32)).collect();
     let xt_bvh = Bvh::build(&xt32, &tgt.faces);
     let orig_target = register::FitTarget {
@@ -317,7 +296,6 @@ pub fn run(
     )?;
     base_report.rms_fit /= ref_diag;
     orig_report.rms_fit /= ref_diag;
-    clock.lap("registration_originals");
     drop(span);
 
     let span = control.span(0.5, 0.55);
@@ -333,7 +311,6 @@ pub fn run(
     let hausdorff = metrics::hausdorff(&fitted_mesh, &target_mesh, ref_diag);
     let flipped = metrics::flipped(&fitted_mesh, &target_mesh);
     let residuals = metrics::residuals(&hand, &fitted, &xt, ref_diag);
-    clock.lap("metrics");
     drop(span);
 
     let _span = control.span(0.55, 1.0);
@@ -379,7 +356,6 @@ pub fn run(
                 .into(),
         );
     }
-    clock.lap("texture");
 
     let report = ElastifaceReport {
         source_surface: SurfaceCounts {
@@ -409,7 +385,6 @@ pub fn run(
         output: params.output,
         textures,
         vertex_colors,
-        timings_ms: clock.0,
         warnings: warnings.clone(),
     };
     Ok((edits, report))
