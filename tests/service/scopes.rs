@@ -160,3 +160,18 @@ fn submit_tokens_cancel_only_their_own_jobs_and_keys_are_per_token() {
         assert_eq!(doc["status"], "canceled", "{doc}");
     }
 }
+
+/// An upload with a wrong or read-only token gets its 401/403, not a reset connection: the
+/// server reads the rest of the body (up to the linger limit) before answering.
+#[test]
+fn a_refused_upload_still_gets_its_answer() {
+    let s = TestServer::start(|c| {
+        c.tokens = vec!["read:dashboard-secret".into()];
+    });
+    let big = vec![7u8; 8 << 20];
+    let parts = vec![("target", "t.glb", big)];
+    for (token, status) in [("wrong-secret", 401), ("dashboard-secret", 403)] {
+        let auth = bearer(token);
+        submit(&s.base, &parts, &[("Authorization", &auth)]).problem(status);
+    }
+}

@@ -23,6 +23,7 @@ use subtle::{ConditionallySelectable, ConstantTimeEq};
 use tower_http::cors::{AllowOrigin, CorsLayer};
 
 use super::caller::{owner_id, Caller};
+use super::linger::drain_unread;
 use super::problem::ApiError;
 use super::AppState;
 
@@ -120,55 +121,64 @@ pub async fn require_token(
         });
     let needed = Scope::needed(req.method());
     let given = given.map(|t| t.as_bytes().to_vec());
-    match given
+    let resp = match given
         .as_deref()
         .and_then(|t| token_scope(&state.config.tokens, t))
     {
         Some(scope) if scope >= needed => {
             let owner = given.as_deref().map(owner_id);
             req.extensions_mut().insert(Caller { scope, owner });
-            next.run(req).await
+            return next.run(req).await;
         }
-        Some(scope) => {
-            let mut resp = ApiError::new(
-                StatusCode::FORBIDDEN,
-                "insufficient-scope",
-                "Insufficient scope",
-                format!(
-                    "this token's scope is {}; {} {} needs {}",
-                    scope.name(),
-                    req.method(),
-                    req.uri().path(),
-                    needed.name()
-                ),
-            )
-            .field("Authorization")
-            .into_response();
-            let challenge = format!(
-                "Bearer realm=\"retex\", error=\"insufficient_scope\", scope=\"{}\"",
-                needed.name()
-            );
-            if let Ok(v) = HeaderValue::from_str(&challenge) {
-                resp.headers_mut().insert(header::WWW_AUTHENTICATE, v);
-            }
-            resp
-        }
-        None => {
-            let mut resp = ApiError::new(
-                StatusCode::UNAUTHORIZED,
-                "unauthorized",
-                "Unauthorized",
-                "a valid `Authorization: Bearer <token>` header is required",
-            )
-            .field("Authorization")
-            .into_response();
-            resp.headers_mut().insert(
-                header::WWW_AUTHENTICATE,
-                HeaderValue::from_static("Bearer realm=\"retex\""),
-            );
-            resp
-        }
+        Some(scope) => insufficient_scope(scope, needed, &req),
+        None => unauthorized(),
+    };
+    // The client may still be sending its body (an upload with a wrong token): read it so it
+    // gets this answer rather than a reset connection (see `linger`).
+    let (parts, body) = req.into_parts();
+    drain_unread(&parts.headers, body).await;
+    resp
+}
+
+fn insufficient_scope(scope: Scope, needed: Scope, req: &Request) -> Response {
+    let mut resp = ApiError::new(
+        StatusCode::FORBIDDEN,
+        "insufficient-scope",
+        "Insufficient scope",
+        format!(
+            "this token's scope is {}; {} {} needs {}",
+            scope.name(),
+            req.method(),
+            req.uri().path(),
+            needed.name()
+        ),
+    )
+    .field("Authorization")
+    .into_response();
+    let challenge = format!(
+        "Bearer realm=\"retex\", error=\"insufficient_scope\", scope=\"{}\"",
+        needed.name()
+    );
+    if let Ok(v) = HeaderValue::from_str(&challenge) {
+        resp.headers_mut().insert(header::WWW_AUTHENTICATE, v);
     }
+    resp
+}
+
+fn unauthorized() -> Response {
+    let mut resp = ApiError::new(
+        StatusCode::UNAUTHORIZED,
+        "unauthorized",
+        "Unauthorized",
+        "a valid `Authorization: Bearer <token>` header is required",
+    )
+    .field("Authorization")
+    .into_response();
+    resp.headers_mut().insert(
+        header::WWW_AUTHENTICATE,
+        HeaderValue::from_static("Bearer realm=\"retex\""),
+    );
+    resp
 }
 
 /// The CORS layer for the configured origins (`*` allows any; none configured allows none).

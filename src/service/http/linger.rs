@@ -153,3 +153,25 @@ impl SharedBody {
         }
     }
 }
+
+/// Reads and discards a whole request body that was rejected before anything read it (401 or
+/// 403 from authentication), when the client declared a length of at most [`LINGER_BYTES`] and
+/// does not wait for `100 Continue`; within [`LINGER_TIME`]. Returns the bytes discarded.
+pub async fn drain_unread(headers: &HeaderMap, body: Body) -> u64 {
+    let small = content_length(headers).is_some_and(|n| n > 0 && n <= LINGER_BYTES);
+    if !small || expects_continue(headers) {
+        return 0;
+    }
+    let mut stream = body.into_data_stream();
+    let mut discarded = 0u64;
+    let work = async {
+        while let Some(Ok(chunk)) = stream.next().await {
+            discarded += chunk.len() as u64;
+            if discarded > LINGER_BYTES {
+                break;
+            }
+        }
+    };
+    let _ = tokio::time::timeout(LINGER_TIME, work).await;
+    discarded
+}
