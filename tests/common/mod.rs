@@ -143,22 +143,24 @@ pub fn glb(json: &serde_json::Value, bin: &[u8]) -> Vec<u8> {
     out
 }
 
+/// The CRC-32 (ISO-HDLC) PNG chunks carry, over a chunk's type and data.
+pub fn png_crc32(data: &[u8]) -> u32 {
+    let mut crc = 0xFFFF_FFFFu32;
+    for &b in data {
+        crc ^= b as u32;
+        for _ in 0..8 {
+            crc = if crc & 1 != 0 {
+                (crc >> 1) ^ 0xEDB8_8320
+            } else {
+                crc >> 1
+            };
+        }
+    }
+    !crc
+}
+
 /// A PNG whose IHDR claims `w` x `h` RGBA8 but whose data is a few bytes: a decompression bomb.
 pub fn bomb_png(w: u32, h: u32) -> Vec<u8> {
-    fn crc32(data: &[u8]) -> u32 {
-        let mut crc = 0xFFFF_FFFFu32;
-        for &b in data {
-            crc ^= b as u32;
-            for _ in 0..8 {
-                crc = if crc & 1 != 0 {
-                    (crc >> 1) ^ 0xEDB8_8320
-                } else {
-                    crc >> 1
-                };
-            }
-        }
-        !crc
-    }
     let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
     let mut ihdr = b"IHDR".to_vec();
     ihdr.extend_from_slice(&w.to_be_bytes());
@@ -171,7 +173,7 @@ pub fn bomb_png(w: u32, h: u32) -> Vec<u8> {
     ] {
         out.extend_from_slice(&(chunk.len() as u32 - 4).to_be_bytes());
         out.extend_from_slice(&chunk);
-        out.extend_from_slice(&crc32(&chunk).to_be_bytes());
+        out.extend_from_slice(&png_crc32(&chunk).to_be_bytes());
     }
     out
 }

@@ -401,23 +401,8 @@ fn fix_png_crcs(data: &mut [u8]) {
         let Some(end) = (at + 8).checked_add(len).filter(|&e| e + 4 <= data.len()) else {
             return;
         };
-        let crc = crc32(&data[at + 4..end]);
+        let crc = super::png_crc32(&data[at + 4..end]);
         data[end..end + 4].copy_from_slice(&crc.to_be_bytes());
         at = end + 4;
     }
-}
-
-fn crc32(data: &[u8]) -> u32 {
-    let mut crc = 0xFFFF_FFFFu32;
-    for &b in data {
-        crc ^= b as u32;
-        for _ in 0..8 {
-            crc = if crc & 1 != 0 {
-                (crc >> 1) ^ 0xEDB8_8320
-            } else {
-                crc >> 1
-            };
-        }
-    }
-    !crc
 }
