@@ -541,7 +541,13 @@ fn meshmatch_progress_never_goes_backwards_and_reaches_one_at_the_end() {
             w[1]
         );
     }
-    assert!(seen.iter().all(|(f, _)| *f < 1.0), "1.0 before the end");
+    // 1.0 only once the run finished: the poll loop may catch the moment between `finish()`
+    // and the thread's exit, so a 1.0 sample must carry the final stage.
+    let last_stage = control.progress().stage;
+    assert!(
+        seen.iter().all(|(f, s)| *f < 1.0 || *s == last_stage),
+        "1.0 before the end"
+    );
     // The levels move the fraction through most of the range, not in one jump at the end.
     let mid = seen.iter().filter(|(f, _)| *f > 0.2 && *f < 0.9).count();
     assert!(mid > 5, "{mid} polls between 20% and 90%: {seen:?}");
