@@ -539,6 +539,30 @@ impl Surface {
         std::array::from_fn(|k| bary[0] * a[k] + bary[1] * b[k] + bary[2] * c[k])
     }
 
+    /// Where the point `bary` of `face` lies on the asset's own triangle: `(primitive, triangle,
+    /// barycentrics in that triangle's vertex order)`. The face's corner order may differ from
+    /// the triangle's (winding flipped for mirroring instances), so the weights are permuted by
+    /// matching each corner's original vertex. None for a surface without origins
+    /// ([`Surface::from_triangles`]) or a face out of range.
+    pub fn primitive_point(
+        &self,
+        asset: &Asset,
+        face: usize,
+        bary: [f32; 3],
+    ) -> Option<(usize, usize, [f32; 3])> {
+        let o = *self.origins.get(face)?;
+        let corners = self.corners.get(face)?;
+        let (primitive, triangle) = (o.primitive as usize, o.triangle as usize);
+        let tri = *asset.primitives.get(primitive)?.triangles.get(triangle)?;
+        let mut b = [0.0f32; 3];
+        for k in 0..3 {
+            if let Some(j) = tri.iter().position(|v| *v == corners[k].vertex) {
+                b[j] += bary[k];
+            }
+        }
+        Some((primitive, triangle, b))
+    }
+
     /// Unit normal of `face` from its winding (`(b - a) × (c - a)`, normalized); `[0, 0, 0]` for a
     /// face of zero area.
     pub fn face_normal(&self, face: usize) -> [f32; 3] {

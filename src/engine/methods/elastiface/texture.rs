@@ -68,19 +68,10 @@ impl RelaidColor<'_> {
             self.target_surface.hint_bound(h as usize, p)
         });
         let hit = self.target_bvh.closest_point(p, bound)?;
-        let f = hit.face as usize;
-        let o = self.target_surface.origins[f];
-        let corners = &self.target_surface.corners[f];
-        let tri = self.target.primitives[o.primitive as usize].triangles[o.triangle as usize];
-        let mut bary = [0.0f32; 3];
-        for k in 0..3 {
-            if let Some(j) = tri.iter().position(|v| *v == corners[k].vertex) {
-                bary[j] += hit.bary[k];
-            }
-        }
-        let color = self
-            .sampler
-            .base_color(o.primitive as usize, o.triangle as usize, bary);
+        let (primitive, triangle, bary) =
+            self.target_surface
+                .primitive_point(self.target, hit.face as usize, hit.bary)?;
+        let color = self.sampler.base_color(primitive, triangle, bary);
         Some((color, hit.face))
     }
 }

@@ -84,20 +84,10 @@ pub fn input_color(
     face: usize,
     bary: [f32; 3],
 ) -> [f32; 4] {
-    if input.origins.is_empty() {
-        return [1.0; 4];
+    match input.primitive_point(asset, face, bary) {
+        Some((primitive, triangle, b)) => sampler.base_color(primitive, triangle, b),
+        None => [1.0; 4],
     }
-    let o = input.origins[face];
-    let corners = &input.corners[face];
-    let tri = asset.primitives[o.primitive as usize].triangles[o.triangle as usize];
-    // The face's corner order may be flipped (mirrored instances): map onto the triangle's.
-    let mut b = [0.0f32; 3];
-    for k in 0..3 {
-        if let Some(j) = tri.iter().position(|v| *v == corners[k].vertex) {
-            b[j] += bary[k];
-        }
-    }
-    sampler.base_color(o.primitive as usize, o.triangle as usize, b)
 }
 
 /// Box-filtered base color of every synthesis vertex (see the module docs), linear RGB.

@@ -165,21 +165,10 @@ impl ColorField for SourceField<'_> {
             None => self.bvh.closest_point(p, bound),
             Some(_) => self.bvh.closest_point_filtered(p, bound, accept),
         }?;
-        let f = hit.face as usize;
-        let o = self.surface.origins[f];
-        let corners = &self.surface.corners[f];
-        let tri = self.asset.primitives[o.primitive as usize].triangles[o.triangle as usize];
-        // Map the face's barycentrics (corner order may be flipped for mirrored instances) onto
-        // the primitive triangle's vertex order.
-        let mut bary = [0.0f32; 3];
-        for k in 0..3 {
-            if let Some(j) = tri.iter().position(|v| *v == corners[k].vertex) {
-                bary[j] += hit.bary[k];
-            }
-        }
-        let color = self
-            .sampler
-            .base_color(o.primitive as usize, o.triangle as usize, bary);
+        let (primitive, triangle, bary) =
+            self.surface
+                .primitive_point(self.asset, hit.face as usize, hit.bary)?;
+        let color = self.sampler.base_color(primitive, triangle, bary);
         Some((color, hit.face))
     }
 }
