@@ -68,8 +68,9 @@ pub struct ServeConfig {
     /// `low-disk-space`. Default 512 MiB (env `RETEX_MIN_FREE_BYTES`).
     pub min_free_bytes: u64,
     /// Seconds after a storage failure (a full disk, a failing database write) during which
-    /// no job is claimed and `/readyz` answers 503 `storage-failing`; a job whose outputs hit
-    /// a full disk goes back to the queue. Default 30.
+    /// no job is claimed (`/readyz` follows a live probe instead); a job whose outputs hit a
+    /// full disk goes back to the queue, and a job whose end the store refuses is retried this
+    /// often. Default 30.
     pub storage_retry_secs: u64,
     /// Seconds granted on SIGTERM/SIGINT to running jobs and open connections. Default 20
     /// (env `RETEX_SHUTDOWN_SECS`).
