@@ -57,6 +57,10 @@ pub struct ServeArgs {
     /// Most client connections at once [env RETEX_MAX_CONNECTIONS; default 512].
     #[arg(long)]
     pub max_connections: Option<usize>,
+    /// Most connections from one IP address [env RETEX_MAX_CONNECTIONS_PER_CLIENT; default 0 =
+    /// no per-client cap].
+    #[arg(long)]
+    pub max_connections_per_client: Option<usize>,
     /// Free bytes below which /readyz is not ready [env RETEX_MIN_FREE_BYTES; default 512 MiB].
     #[arg(long)]
     pub min_free_bytes: Option<u64>,
@@ -139,6 +143,7 @@ pub fn config(args: &ServeArgs) -> Result<(ServeConfig, Origins), String> {
         idle_timeout_secs,
         upload_timeout_secs,
         max_connections,
+        max_connections_per_client,
         min_free_bytes,
         storage_retry_secs,
         shutdown_secs,

@@ -64,6 +64,11 @@ pub struct ServeConfig {
     /// closed. Default 512, well under the usual limit of 1024 open files
     /// (env `RETEX_MAX_CONNECTIONS`).
     pub max_connections: usize,
+    /// Most connections at once from one peer IP address; one beyond gets 503
+    /// `too-many-client-connections` and is closed. Default 0 = no per-client cap (behind a
+    /// reverse proxy every client has the proxy's address) (env
+    /// `RETEX_MAX_CONNECTIONS_PER_CLIENT`).
+    pub max_connections_per_client: usize,
     /// Free bytes the data directory's file system must keep: below, `/readyz` answers 503
     /// `low-disk-space`. Default 512 MiB (env `RETEX_MIN_FREE_BYTES`).
     pub min_free_bytes: u64,
@@ -125,6 +130,7 @@ impl Default for ServeConfig {
             idle_timeout_secs: 60,
             upload_timeout_secs: 3600,
             max_connections: 512,
+            max_connections_per_client: 0,
             min_free_bytes: 512 << 20,
             storage_retry_secs: 30,
             shutdown_secs: 20,
@@ -254,6 +260,9 @@ impl ServeConfig {
         if let Some(v) = get("RETEX_MAX_CONNECTIONS") {
             self.max_connections = parse("RETEX_MAX_CONNECTIONS", &v)?;
         }
+        if let Some(v) = get("RETEX_MAX_CONNECTIONS_PER_CLIENT") {
+            self.max_connections_per_client = parse("RETEX_MAX_CONNECTIONS_PER_CLIENT", &v)?;
+        }
         if let Some(v) = get("RETEX_MIN_FREE_BYTES") {
             self.min_free_bytes = parse("RETEX_MIN_FREE_BYTES", &v)?;
         }
@@ -317,6 +326,12 @@ impl ServeConfig {
         }
         if !(1..=1_000_000).contains(&self.max_connections) {
             return bad("max_connections", "must be within 1..=1000000");
+        }
+        if self.max_connections_per_client > self.max_connections {
+            return bad(
+                "max_connections_per_client",
+                "must be at most max_connections (0 = no per-client cap)",
+            );
         }
         if self.idempotency_secs < 24 * 3600 {
             return bad("idempotency_secs", "keys are kept at least 24 h (86400)");

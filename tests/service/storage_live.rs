@@ -56,6 +56,32 @@ fn an_upload_spooled_onto_a_full_disk_is_507_and_leaves_no_temp_file() {
 }
 
 #[test]
+fn a_zip_unpacked_onto_a_full_disk_is_507_not_an_invalid_zip() {
+    // The zip part is spooled; its entries fill the disk as they are extracted.
+    let (s, _, refused) = full_disk_server(&["-zip-"], |c| c.storage_retry_secs = 60);
+    let mut parts = spot_parts(16);
+    let mut zip_bytes = std::io::Cursor::new(Vec::new());
+    {
+        let mut z = zip::ZipWriter::new(&mut zip_bytes);
+        z.start_file("spot.glb", zip::write::SimpleFileOptions::default())
+            .unwrap();
+        std::io::Write::write_all(&mut z, &parts[0].2).unwrap();
+        z.finish().unwrap();
+    }
+    parts[0] = ("source", "spot.zip", zip_bytes.into_inner());
+    let r = submit(&s.base, &parts, &[]);
+    let p = r.problem(507);
+    assert_eq!(p["type"], "/problems/insufficient-storage", "{p}");
+    assert_no_os_text(&r);
+    assert!(refused.load(Ordering::SeqCst) > 0);
+    assert_eq!(
+        temp_files(&s),
+        Vec::<String>::new(),
+        "partial upload left behind"
+    );
+}
+
+#[test]
 fn a_database_that_cannot_grow_is_507_and_readyz_recovers_when_it_can() {
     // The server's job store is a second store on the same file whose writer is capped at the
     // database's current size: SQLite answers SQLITE_FULL as on a full disk.
