@@ -1,5 +1,7 @@
 //! `retex serve`: the HTTP job service. Settings come from defaults, then `--config FILE`
-//! (TOML), then `RETEX_*` environment variables, then these flags. On start it prints
+//! (TOML), then `RETEX_*` environment variables, then these flags; when none of them sets
+//! `memory_bytes`, it is taken from the machine ([`retex::service::memory`]) and the workers
+//! and per-job limits are fitted into it (`ServeConfig::fit_workers`). On start it prints
 //! `retex listening on http://ADDR` to stdout (tests start it on port 0 and read the address);
 //! SIGTERM or SIGINT shut it down gracefully.
 
