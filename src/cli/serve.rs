@@ -1,5 +1,7 @@
 //! `retex serve`: the HTTP job service. Settings come from defaults, then `--config FILE`
-//! (TOML), then `RETEX_*` environment variables, then these flags. On start it prints
+//! (TOML), then `RETEX_*` environment variables, then these flags; when none of them sets
+//! `memory_bytes`, it is taken from the machine ([`retex::service::memory`]) and the workers
+//! and per-job limits are fitted into it (`ServeConfig::fit_workers`). On start it prints
 //! `retex listening on http://ADDR` to stdout (tests start it on port 0 and read the address);
 //! SIGTERM or SIGINT shut it down gracefully.
 
@@ -10,6 +12,7 @@ use std::path::{Path, PathBuf};
 use clap::Args;
 use retex::service::config::ServeConfig;
 use retex::service::http;
+use retex::service::memory;
 
 /// Flags of `retex serve` (each overrides the config file and the environment).
 #[derive(Args, Debug, Default)]
@@ -56,6 +59,10 @@ pub struct ServeArgs {
     /// Most client connections at once [env RETEX_MAX_CONNECTIONS; default 512].
     #[arg(long)]
     pub max_connections: Option<usize>,
+    /// Most connections from one IP address [env RETEX_MAX_CONNECTIONS_PER_CLIENT; default 0 =
+    /// no per-client cap].
+    #[arg(long)]
+    pub max_connections_per_client: Option<usize>,
     /// Free bytes below which /readyz is not ready [env RETEX_MIN_FREE_BYTES; default 512 MiB].
     #[arg(long)]
     pub min_free_bytes: Option<u64>,
@@ -78,8 +85,9 @@ pub struct ServeArgs {
     /// default 20,000,000].
     #[arg(long)]
     pub max_triangles: Option<u64>,
-    /// Memory the jobs may use together; workers are lowered to fit their worst case
-    /// [env RETEX_MEMORY_BYTES; default 0 = not set].
+    /// Memory the jobs may use together; workers (and, below one job, the per-job limits) are
+    /// lowered to fit their worst case; 0 = no cap [env RETEX_MEMORY_BYTES; default: the cgroup
+    /// limit or MemTotal, less 512 MiB].
     #[arg(long)]
     pub memory_bytes: Option<u64>,
     /// JSON log lines [env RETEX_LOG_JSON=1].
@@ -87,9 +95,18 @@ pub struct ServeArgs {
     pub log_json: bool,
 }
 
-/// Builds the configuration from file, environment and flags; also says where `data_dir` came
-/// from (for the error when it cannot be used).
-pub fn config(args: &ServeArgs) -> Result<(ServeConfig, String), String> {
+/// What [`config`] decided besides the settings: where `data_dir` came from (for the error when
+/// it cannot be used), where the memory budget came from, and the lines saying what the budget
+/// lowered (logged once tracing is up).
+pub struct Origins {
+    data_dir: String,
+    memory: String,
+    notes: Vec<String>,
+}
+
+/// Builds the configuration from file, environment and flags, and fits the jobs into the memory
+/// budget (detected from the machine when no setting gives one).
+pub fn config(args: &ServeArgs) -> Result<(ServeConfig, Origins), String> {
     let mut origin = "the default data_dir (./retex-data, relative to the current folder)".into();
     let mut c = match &args.config {
         Some(path) => {
@@ -128,23 +145,50 @@ pub fn config(args: &ServeArgs) -> Result<(ServeConfig, String), String> {
         idle_timeout_secs,
         upload_timeout_secs,
         max_connections,
+        max_connections_per_client,
         min_free_bytes,
         storage_retry_secs,
         shutdown_secs,
         max_body_bytes,
         max_part_bytes,
-        max_texture_size,
-        memory_bytes
+        max_texture_size
     );
+    if let Some(v) = args.memory_bytes {
+        c.memory_bytes = Some(v);
+    }
     if let Some(v) = args.max_triangles {
         c.limits.max_triangles = v;
     }
     c.log_json |= args.log_json;
     c.validate().map_err(|e| e.to_string())?;
-    if let Some(note) = c.fit_workers().map_err(|e| e.to_string())? {
-        eprintln!("retex serve: {note}");
-    }
-    Ok((c, origin))
+    let memory = match c.memory_bytes {
+        Some(0) => "memory_bytes = 0 (no cap)".to_string(),
+        Some(_) => "memory_bytes (config, RETEX_MEMORY_BYTES or --memory-bytes)".to_string(),
+        None => match memory::detect_here() {
+            Some(m) => {
+                c.memory_bytes = Some(m.job_budget());
+                format!(
+                    "{} = {} bytes, less {} for the server",
+                    m.source,
+                    m.bytes,
+                    memory::SERVER_RESERVE_BYTES
+                )
+            }
+            None => "not detected (no cgroup limit or /proc/meminfo): no cap".to_string(),
+        },
+    };
+    let notes = c
+        .fit_workers()
+        .map_err(|e| format!("{e} [budget from {memory}]"))?;
+    c.validate().map_err(|e| e.to_string())?;
+    Ok((
+        c,
+        Origins {
+            data_dir: origin,
+            memory,
+            notes,
+        },
+    ))
 }
 
 /// Creates the data directory and checks that a file can be created in it, naming the setting
@@ -179,9 +223,12 @@ fn init_tracing(json: bool) {
 
 /// Runs the server until SIGTERM/SIGINT.
 pub fn run(args: &ServeArgs) -> Result<(), String> {
-    let (config, data_dir_origin) = config(args)?;
-    check_data_dir(&config.data_dir, &data_dir_origin)?;
+    let (config, origins) = config(args)?;
+    check_data_dir(&config.data_dir, &origins.data_dir)?;
     init_tracing(config.log_json);
+    for note in &origins.notes {
+        tracing::warn!("{note}");
+    }
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .thread_name("retex-http")
@@ -194,10 +241,11 @@ pub fn run(args: &ServeArgs) -> Result<(), String> {
         tracing::info!(addr = %server.addr, data_dir = %server.state.config.data_dir.display(), "serving");
         let c = &server.state.config;
         tracing::info!(
-            workers = c.workers,
+            memory_bytes = c.memory_bytes.unwrap_or(0),
+            budget_from = %origins.memory,
             job_worst_case_bytes = c.job_memory_bytes(),
-            memory_bytes = c.memory_bytes,
-            "memory: at most workers x job_worst_case_bytes for jobs (README \"Service\")"
+            workers = c.workers,
+            "memory: jobs need at most workers x job_worst_case_bytes (README \"Service\")"
         );
         http::shutdown_signal().await;
         tracing::info!("shutdown requested; draining");

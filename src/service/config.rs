@@ -13,6 +13,11 @@ use serde::{Deserialize, Serialize};
 
 use crate::engine::asset::IngestLimits;
 
+#[path = "config_fit.rs"]
+mod fit;
+
+pub use fit::MIN_JOB_BYTES;
+
 /// Everything `retex serve` can be told.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -59,12 +64,18 @@ pub struct ServeConfig {
     /// closed. Default 512, well under the usual limit of 1024 open files
     /// (env `RETEX_MAX_CONNECTIONS`).
     pub max_connections: usize,
+    /// Most connections at once from one peer IP address; one beyond gets 503
+    /// `too-many-client-connections` and is closed. Default 0 = no per-client cap (behind a
+    /// reverse proxy every client has the proxy's address) (env
+    /// `RETEX_MAX_CONNECTIONS_PER_CLIENT`).
+    pub max_connections_per_client: usize,
     /// Free bytes the data directory's file system must keep: below, `/readyz` answers 503
     /// `low-disk-space`. Default 512 MiB (env `RETEX_MIN_FREE_BYTES`).
     pub min_free_bytes: u64,
     /// Seconds after a storage failure (a full disk, a failing database write) during which
-    /// no job is claimed and `/readyz` answers 503 `storage-failing`; a job whose outputs hit
-    /// a full disk goes back to the queue. Default 30.
+    /// no job is claimed (`/readyz` follows a live probe instead); a job whose outputs hit a
+    /// full disk goes back to the queue, and a job whose end the store refuses is retried this
+    /// often. Default 30.
     pub storage_retry_secs: u64,
     /// Seconds granted on SIGTERM/SIGINT to running jobs and open connections. Default 20
     /// (env `RETEX_SHUTDOWN_SECS`).
@@ -84,11 +95,14 @@ pub struct ServeConfig {
     /// Limits applied when validating uploads and when the job loads them again
     /// (`max_triangles`, `max_image_pixels`, `max_decoded_image_bytes`, `max_method_bytes`, ...).
     pub limits: IngestLimits,
-    /// Memory the jobs may use together, in bytes (e.g. the container's limit less 256 MiB for
-    /// the server itself); 0 = not set. When set, `workers` is lowered so that workers × the
-    /// worst case of one job ([`ServeConfig::job_memory_bytes`]) fits, and a value that does
-    /// not fit one job is refused (env `RETEX_MEMORY_BYTES`).
-    pub memory_bytes: u64,
+    /// Memory the jobs may use together, in bytes; `0` = no cap. Unset (the default), `retex
+    /// serve` takes it from the machine ([`crate::service::memory`]: the cgroup limit or
+    /// MemTotal, less 512 MiB for the server); the library ([`ServeConfig::default`], tests)
+    /// never detects it, so unset there means no cap. [`ServeConfig::fit_workers`] lowers
+    /// `workers` so that workers × the worst case of one job ([`ServeConfig::job_memory_bytes`])
+    /// fits, and lowers the per-job limits when not even one job fits
+    /// (env `RETEX_MEMORY_BYTES`).
+    pub memory_bytes: Option<u64>,
     /// JSON log lines instead of text (env `RETEX_LOG_JSON=1`).
     pub log_json: bool,
     /// `RETEX_TOKENS` was set but names no token (empty or blank): a server meant to need
@@ -116,6 +130,7 @@ impl Default for ServeConfig {
             idle_timeout_secs: 60,
             upload_timeout_secs: 3600,
             max_connections: 512,
+            max_connections_per_client: 0,
             min_free_bytes: 512 << 20,
             storage_retry_secs: 30,
             shutdown_secs: 20,
@@ -125,7 +140,7 @@ impl Default for ServeConfig {
             max_files: 256,
             max_texture_size: 8192,
             limits: IngestLimits::default(),
-            memory_bytes: 0,
+            memory_bytes: None,
             log_json: false,
             tokens_blank: false,
         }
@@ -245,6 +260,9 @@ impl ServeConfig {
         if let Some(v) = get("RETEX_MAX_CONNECTIONS") {
             self.max_connections = parse("RETEX_MAX_CONNECTIONS", &v)?;
         }
+        if let Some(v) = get("RETEX_MAX_CONNECTIONS_PER_CLIENT") {
+            self.max_connections_per_client = parse("RETEX_MAX_CONNECTIONS_PER_CLIENT", &v)?;
+        }
         if let Some(v) = get("RETEX_MIN_FREE_BYTES") {
             self.min_free_bytes = parse("RETEX_MIN_FREE_BYTES", &v)?;
         }
@@ -264,7 +282,7 @@ impl ServeConfig {
             self.limits.max_triangles = parse("RETEX_MAX_TRIANGLES", &v)?;
         }
         if let Some(v) = get("RETEX_MEMORY_BYTES") {
-            self.memory_bytes = parse("RETEX_MEMORY_BYTES", &v)?;
+            self.memory_bytes = Some(parse("RETEX_MEMORY_BYTES", &v)?);
         }
         if let Some(v) = get("RETEX_LOG_JSON") {
             self.log_json = matches!(v.trim(), "1" | "true" | "yes");
@@ -309,6 +327,12 @@ impl ServeConfig {
         if !(1..=1_000_000).contains(&self.max_connections) {
             return bad("max_connections", "must be within 1..=1000000");
         }
+        if self.max_connections_per_client > self.max_connections {
+            return bad(
+                "max_connections_per_client",
+                "must be at most max_connections (0 = no per-client cap)",
+            );
+        }
         if self.idempotency_secs < 24 * 3600 {
             return bad("idempotency_secs", "keys are kept at least 24 h (86400)");
         }
@@ -332,57 +356,6 @@ impl ServeConfig {
             });
         }
         Ok(())
-    }
-
-    /// The worst-case memory of one job under these settings, in bytes (README "Service",
-    /// memory per job): the encoded inputs three times (the upload read from the blob store,
-    /// the loaded assets' copies of their buffers and images, the output model), the decoded
-    /// images (`max_decoded_image_bytes`), the instanced geometry of the surfaces and their
-    /// BVHs (`max_vertices`, `max_triangles`) and the method's own working set
-    /// (`max_method_bytes`, which bounds `output.texture_size` too).
-    pub fn job_memory_bytes(&self) -> u64 {
-        use crate::engine::asset::budget::{TRIANGLE_BYTES, VERTEX_BYTES};
-        let l = &self.limits;
-        [
-            self.max_body_bytes.saturating_mul(3),
-            l.max_decoded_image_bytes,
-            l.max_vertices.saturating_mul(VERTEX_BYTES),
-            l.max_triangles.saturating_mul(TRIANGLE_BYTES),
-            l.max_method_bytes,
-        ]
-        .into_iter()
-        .fold(0u64, u64::saturating_add)
-    }
-
-    /// Fits `workers` into `memory_bytes` (when set): lowers it to memory_bytes / the worst case
-    /// of one job, and says so.
-    ///
-    /// # Errors
-    /// [`ConfigError::Invalid`] (`memory_bytes`) when not even one job fits.
-    pub fn fit_workers(&mut self) -> Result<Option<String>, ConfigError> {
-        if self.memory_bytes == 0 {
-            return Ok(None);
-        }
-        let job = self.job_memory_bytes();
-        let fit = usize::try_from(self.memory_bytes / job.max(1)).unwrap_or(usize::MAX);
-        if fit == 0 {
-            return Err(ConfigError::Invalid {
-                field: "memory_bytes",
-                message: format!(
-                    "memory_bytes = {} does not hold one job's worst case of {job} bytes; lower max_body_bytes or the [limits] max_decoded_image_bytes, max_vertices, max_triangles, max_method_bytes (README \"Service\"), or raise memory_bytes",
-                    self.memory_bytes
-                ),
-            });
-        }
-        if fit >= self.workers {
-            return Ok(None);
-        }
-        let message = format!(
-            "workers lowered from {} to {fit}: memory_bytes = {} holds {fit} jobs of at most {job} bytes each",
-            self.workers, self.memory_bytes
-        );
-        self.workers = fit;
-        Ok(Some(message))
     }
 
     /// Time-to-live of finished jobs.
@@ -424,22 +397,6 @@ mod tests {
             .apply_env(|k| (k == "RETEX_WORKERS").then(|| "many".to_string()))
             .unwrap_err();
         assert!(e.to_string().contains("RETEX_WORKERS"), "{e}");
-    }
-
-    #[test]
-    fn workers_fit_the_memory_budget() {
-        let mut c = ServeConfig {
-            workers: 8,
-            ..ServeConfig::default()
-        };
-        let job = c.job_memory_bytes();
-        assert_eq!(c.fit_workers().unwrap(), None, "unset: no cap");
-        c.memory_bytes = 3 * job + job / 2;
-        let note = c.fit_workers().unwrap().unwrap();
-        assert_eq!(c.workers, 3, "{note}");
-        c.memory_bytes = job - 1;
-        let e = c.fit_workers().unwrap_err();
-        assert!(e.to_string().contains("memory_bytes"), "{e}");
     }
 
     #[test]

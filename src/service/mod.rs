@@ -7,6 +7,7 @@
 pub mod config;
 pub mod http;
 pub mod jobs;
+pub mod memory;
 pub mod model;
 pub mod problem_table;
 pub mod store;

@@ -292,6 +292,17 @@ pub fn panic_problem(message: &str) -> Problem {
     )
 }
 
+/// A job whose success the job store refused to record, again and again
+/// ([`crate::service::jobs::runner::FINISH_SLOW_ROUNDS`] rounds): recorded as failed instead.
+pub fn result_not_stored_problem() -> Problem {
+    problem(
+        "result-not-stored",
+        "result not stored",
+        500,
+        "the job ran, but the job store refused to record its result (see the server log); submit it again".into(),
+    )
+}
+
 /// A failure of the service around the engine (blob store, database).
 pub fn internal_problem(detail: String) -> Problem {
     problem("internal", "internal error", 500, detail)

@@ -110,6 +110,53 @@ fn a_connection_beyond_the_cap_gets_503_and_healthz_recovers() {
     healthz_answers(&s, Duration::from_secs(15));
 }
 
+/// A connection from the local address `ip` (any of 127.0.0.0/8 reaches the loopback).
+fn connect_from(s: &TestServer, ip: &str) -> TcpStream {
+    use socket2::{Domain, Socket, Type};
+    let sock = Socket::new(Domain::IPV4, Type::STREAM, None).unwrap();
+    let local: std::net::SocketAddr = format!("{ip}:0").parse().unwrap();
+    sock.bind(&local.into()).unwrap();
+    let server: std::net::SocketAddr = s.base.trim_start_matches("http://").parse().unwrap();
+    sock.connect(&server.into()).unwrap();
+    let tcp: TcpStream = sock.into();
+    tcp.set_read_timeout(Some(Duration::from_secs(15))).unwrap();
+    tcp
+}
+
+#[test]
+fn a_client_beyond_its_own_cap_gets_503_while_other_clients_are_served() {
+    let s = TestServer::start(|c| {
+        c.max_connections = 16;
+        c.max_connections_per_client = 2;
+        c.header_timeout_secs = 5;
+    });
+    // One client (127.0.0.1) holds its two slots with silent connections.
+    let mut holders: Vec<TcpStream> = (0..2).map(|_| connect(&s)).collect();
+    std::thread::sleep(Duration::from_millis(300));
+    let mut third = connect(&s);
+    let _ = third.write_all(b"GET /healthz HTTP/1.1\r\nHost: t\r\n\r\n");
+    let answer = read_until_closed(&mut third);
+    assert!(answer.starts_with("HTTP/1.1 503"), "{answer}");
+    let lower = answer.to_ascii_lowercase();
+    assert!(lower.contains("retry-after:"), "{answer}");
+    assert!(
+        answer.contains("/problems/too-many-client-connections"),
+        "{answer}"
+    );
+    assert!(answer.contains("max_connections_per_client"), "{answer}");
+    // Another address is served meanwhile (the global cap of 16 is far).
+    let mut other = connect_from(&s, "127.0.0.2");
+    other
+        .write_all(b"GET /healthz HTTP/1.1\r\nHost: t\r\nConnection: close\r\n\r\n")
+        .unwrap();
+    let answer = read_until_closed(&mut other);
+    assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+    // The first client closes one connection: it is served again at once (well before the
+    // header timeout would have freed the slot).
+    drop(holders.pop());
+    healthz_answers(&s, Duration::from_secs(3));
+}
+
 #[test]
 fn idle_sockets_beyond_the_cap_do_not_stop_healthz() {
     let s = TestServer::start(|c| {

@@ -23,4 +23,5 @@ mod runner;
 mod scopes;
 mod soak;
 mod storage_faults;
+mod storage_live;
 mod store;

@@ -3,7 +3,7 @@
 //! `insufficient-storage` without OS text, a locked database is 503 `store-busy` with
 //! `Retry-After`, a job whose outputs hit a full disk goes back to the queue and succeeds once
 //! space is back, and `/readyz` is not ready on a storage failure, low free space, a full
-//! queue, or while draining (and keeps answering then).
+//! queue, or while draining (and keeps answering then). More in `storage_live`.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -15,22 +15,57 @@ use retex::service::store::{BlobStore, StoreError};
 
 use crate::service_common::*;
 
-/// A blob store whose writes of keys containing `needle` fail with ENOSPC while `full` is set.
-struct FullDisk {
-    inner: Arc<dyn BlobStore>,
-    full: Arc<AtomicBool>,
-    needle: &'static str,
-    refused: Arc<AtomicUsize>,
+/// ENOSPC, as the kernel reports it.
+pub fn enospc() -> std::io::Error {
+    std::io::Error::from_raw_os_error(28)
+}
+
+/// A blob store whose writes of keys (and spooled upload files) whose name contains one of
+/// `needles` fail with ENOSPC while `full` is set. The `/readyz` probe writes the key
+/// `health/probe` (needle `health`); uploads are spooled to `upload-<uuid>-part-<n>` (needle
+/// `upload`).
+pub struct FullDisk {
+    pub inner: Arc<dyn BlobStore>,
+    pub full: Arc<AtomicBool>,
+    pub needles: &'static [&'static str],
+    pub refused: Arc<AtomicUsize>,
 }
 
 impl FullDisk {
+    fn hit(&self, name: &str) -> bool {
+        self.full.load(Ordering::SeqCst) && self.needles.iter().any(|n| name.contains(n))
+    }
+
     fn check(&self, key: &str) -> Result<(), StoreError> {
-        if self.full.load(Ordering::SeqCst) && key.contains(self.needle) {
+        if self.hit(key) {
             self.refused.fetch_add(1, Ordering::SeqCst);
-            // ENOSPC, as the kernel reports it.
-            return Err(StoreError::Io(std::io::Error::from_raw_os_error(28)));
+            return Err(StoreError::Io(enospc()));
         }
         Ok(())
+    }
+}
+
+/// A spooled upload file on a disk that fills up: the first `room` bytes are written, then
+/// every write fails with ENOSPC (as a real full disk does part-way through a file).
+struct FillingFile {
+    file: Box<dyn std::io::Write + Send>,
+    room: usize,
+    refused: Arc<AtomicUsize>,
+}
+
+impl std::io::Write for FillingFile {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        if self.room == 0 {
+            self.refused.fetch_add(1, Ordering::SeqCst);
+            return Err(enospc());
+        }
+        let n = buf.len().min(self.room);
+        let n = self.file.write(&buf[..n])?;
+        self.room -= n;
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.file.flush()
     }
 }
 
@@ -61,11 +96,24 @@ impl BlobStore for FullDisk {
     fn sweep_temp(&self, older_than: Duration) -> Result<usize, StoreError> {
         self.inner.sweep_temp(older_than)
     }
+    fn create_temp(&self, path: &Path) -> std::io::Result<Box<dyn std::io::Write + Send>> {
+        let file = self.inner.create_temp(path)?;
+        let name = path.file_name().unwrap_or_default().to_string_lossy();
+        if !self.hit(&name) {
+            return Ok(file);
+        }
+        Ok(Box::new(FillingFile {
+            file,
+            room: 8 << 10,
+            refused: self.refused.clone(),
+        }))
+    }
 }
 
-/// A server whose blob writes under keys containing `needle` fail while the flag is set.
-fn full_disk_server(
-    needle: &'static str,
+/// A server whose blob writes under keys containing one of `needles` fail while the flag is
+/// set.
+pub fn full_disk_server(
+    needles: &'static [&'static str],
     edit: impl FnOnce(&mut retex::service::config::ServeConfig),
 ) -> (TestServer, Arc<AtomicBool>, Arc<AtomicUsize>) {
     let full = Arc::new(AtomicBool::new(true));
@@ -75,7 +123,7 @@ fn full_disk_server(
         let wrapped: Arc<dyn BlobStore> = Arc::new(FullDisk {
             inner: blobs,
             full: f,
-            needle,
+            needles,
             refused: r,
         });
         (jobs, wrapped)
@@ -83,7 +131,7 @@ fn full_disk_server(
     (s, full, refused)
 }
 
-fn assert_no_os_text(r: &Resp) {
+pub fn assert_no_os_text(r: &Resp) {
     let body = String::from_utf8_lossy(&r.body).to_ascii_lowercase();
     for raw in ["no space left", "os error", "database is locked", "sqlite"] {
         assert!(!body.contains(raw), "raw text {raw:?} in {body}");
@@ -92,8 +140,12 @@ fn assert_no_os_text(r: &Resp) {
 
 #[test]
 fn a_full_disk_at_submission_is_507_without_os_text_and_readyz_turns_unready() {
-    let (s, full, refused) = full_disk_server("/inputs/", |c| c.storage_retry_secs = 60);
+    // A full disk fails every write: the inputs and the readiness probe.
+    let (s, full, refused) =
+        full_disk_server(&["/inputs/", "health"], |c| c.storage_retry_secs = 60);
+    full.store(false, Ordering::SeqCst);
     assert_eq!(get(&format!("{}/readyz", s.base)).status, 200);
+    full.store(true, Ordering::SeqCst);
     let r = submit(&s.base, &spot_parts(16), &[]);
     let p = r.problem(507);
     assert_eq!(p["type"], "/problems/insufficient-storage", "{p}");
@@ -112,7 +164,7 @@ fn a_full_disk_at_submission_is_507_without_os_text_and_readyz_turns_unready() {
 
 #[test]
 fn a_job_whose_outputs_hit_a_full_disk_is_requeued_and_succeeds_later() {
-    let (s, full, refused) = full_disk_server("/outputs/", |c| {
+    let (s, full, refused) = full_disk_server(&["/outputs/"], |c| {
         c.storage_retry_secs = 1;
         c.workers = 1;
     });
@@ -152,10 +204,37 @@ fn a_locked_database_is_503_store_busy_with_retry_after() {
     assert_eq!(p["type"], "/problems/store-busy", "{p}");
     assert_eq!(r.header("retry-after"), Some("1"));
     assert_no_os_text(&r);
+    // While the lock is held the readiness probe cannot write either.
+    let p = get(&format!("{}/readyz", s.base)).problem(503);
+    assert_eq!(p["type"], "/problems/storage-failing", "{p}");
     other.execute_batch("COMMIT;").unwrap();
-    // The lock is gone: the same call answers normally again.
+    // The lock is gone: the same call answers normally again, and so does /readyz (its probe
+    // is live, not a time window after the failure: storage_retry_secs is 60 here).
     request("DELETE", &format!("{}/v1/jobs/{id}", s.base), &[], None).problem(404);
-    get(&format!("{}/readyz", s.base)).problem(503);
+    wait_ready(&s.base, Duration::from_secs(10));
+}
+
+/// Polls `/readyz` until it answers 200 (it probes the storage at most every 2 s).
+pub fn wait_ready(base: &str, timeout: Duration) {
+    wait_readyz(base, 200, timeout);
+}
+
+/// Polls `/readyz` until it answers `status`; returns that answer.
+pub fn wait_readyz(base: &str, status: u16, timeout: Duration) -> Resp {
+    let end = Instant::now() + timeout;
+    loop {
+        let r = get(&format!("{base}/readyz"));
+        if r.status == status {
+            return r;
+        }
+        assert!(
+            Instant::now() < end,
+            "/readyz still {}: {}",
+            r.status,
+            String::from_utf8_lossy(&r.body)
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
 }
 
 #[test]

@@ -10,6 +10,11 @@
 //! - **Connection cap** (`max_connections`): a connection beyond it is answered at once with
 //!   `503` problem+json (`/problems/too-many-connections`, `Retry-After`) and closed, so the
 //!   sockets the server holds stay bounded and `/healthz` answers again as soon as slots free.
+//! - **Per-client cap** (`max_connections_per_client`, off by default): a connection from a peer
+//!   address that already holds this many is answered `503`
+//!   (`/problems/too-many-client-connections`, `Retry-After`) and closed, so one client cannot
+//!   take every slot of the global cap. Off by default because behind a reverse proxy or a load
+//!   balancer every client has the proxy's address.
 //! - **Drain**: while the server drains ([`serve`]'s `draining`), open connections close after
 //!   their current request and new ones are served one request each (keep-alive off), so
 //!   `/readyz` keeps answering (`503 shutting-down`) until `stop`.
@@ -52,6 +57,8 @@ pub struct ConnLimits {
     pub idle_timeout: Duration,
     /// Most connections served at once.
     pub max_connections: usize,
+    /// Most connections served at once per peer IP address; 0 = no per-client cap.
+    pub max_connections_per_client: usize,
 }
 
 impl ConnLimits {
@@ -61,6 +68,7 @@ impl ConnLimits {
             header_timeout: Duration::from_secs(config.header_timeout_secs),
             idle_timeout: Duration::from_secs(config.idle_timeout_secs),
             max_connections: config.max_connections,
+            max_connections_per_client: config.max_connections_per_client,
         }
     }
 }
@@ -233,12 +241,34 @@ impl http_body::Body for Tracked {
 
 /// The 503 a connection beyond the cap gets.
 fn refusal(max_connections: usize) -> Vec<u8> {
+    refusal_answer(
+        "too-many-connections",
+        "Too many connections",
+        format!("the server holds {max_connections} connections; try again shortly"),
+        "max_connections",
+        max_connections,
+    )
+}
+
+/// The 503 a connection beyond the per-client cap gets.
+fn client_refusal(per_client: usize) -> Vec<u8> {
+    refusal_answer(
+        "too-many-client-connections",
+        "Too many connections from this client",
+        format!("this address holds {per_client} connections already; reuse them (keep-alive) or close one"),
+        "max_connections_per_client",
+        per_client,
+    )
+}
+
+/// A whole `503` HTTP/1.1 answer with a problem+json body and `Retry-After: 1`.
+fn refusal_answer(kind: &str, title: &str, detail: String, limit: &str, value: usize) -> Vec<u8> {
     let body = serde_json::json!({
-        "type": "/problems/too-many-connections",
-        "title": "Too many connections",
+        "type": format!("/problems/{kind}"),
+        "title": title,
         "status": 503,
-        "detail": format!("the server holds {max_connections} connections; try again shortly"),
-        "limit": {"name": "max_connections", "value": max_connections},
+        "detail": detail,
+        "limit": {"name": limit, "value": value},
     })
     .to_string();
     format!(
@@ -247,6 +277,44 @@ fn refusal(max_connections: usize) -> Vec<u8> {
         body.len()
     )
     .into_bytes()
+}
+
+/// Connections held per peer address (for `max_connections_per_client`).
+#[derive(Default)]
+struct Clients(Mutex<std::collections::HashMap<std::net::IpAddr, usize>>);
+
+/// One connection counted against its peer address; uncounted when dropped.
+struct ClientSlot {
+    clients: Arc<Clients>,
+    ip: std::net::IpAddr,
+}
+
+impl Clients {
+    /// Counts a connection from `ip`, unless it holds `cap` already (`None`).
+    fn take(self: &Arc<Self>, ip: std::net::IpAddr, cap: usize) -> Option<ClientSlot> {
+        let mut held = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        let n = held.entry(ip).or_insert(0);
+        if *n >= cap {
+            return None;
+        }
+        *n += 1;
+        Some(ClientSlot {
+            clients: self.clone(),
+            ip,
+        })
+    }
+}
+
+impl Drop for ClientSlot {
+    fn drop(&mut self) {
+        let mut held = self.clients.0.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(n) = held.get_mut(&self.ip) {
+            *n -= 1;
+            if *n == 0 {
+                held.remove(&self.ip);
+            }
+        }
+    }
 }
 
 /// Answers a connection beyond the cap with the 503 and closes it, after reading what the
@@ -336,13 +404,15 @@ pub async fn serve(
     let slots = Arc::new(Semaphore::new(limits.max_connections));
     let lingering = Arc::new(Semaphore::new(REFUSALS));
     let answer: Arc<[u8]> = refusal(limits.max_connections).into();
+    let client_answer: Arc<[u8]> = client_refusal(limits.max_connections_per_client).into();
+    let clients = Arc::new(Clients::default());
     loop {
         let accepted = tokio::select! {
             accepted = listener.accept() => accepted,
             _ = stop.wait_for(|s| *s) => break,
         };
-        let stream = match accepted {
-            Ok((stream, _)) => stream,
+        let (stream, peer) = match accepted {
+            Ok(pair) => pair,
             Err(e) => {
                 // Out of file descriptors, or a connection reset before the accept: wait a
                 // little rather than spin.
@@ -350,6 +420,17 @@ pub async fn serve(
                 tokio::time::sleep(Duration::from_millis(50)).await;
                 continue;
             }
+        };
+        let client = match limits.max_connections_per_client {
+            0 => None,
+            cap => match clients.take(peer.ip(), cap) {
+                Some(slot) => Some(slot),
+                None => {
+                    tracing::debug!(%peer, cap, "connection refused: per-client cap reached");
+                    refuse(stream, client_answer.clone(), &lingering);
+                    continue;
+                }
+            },
         };
         let Ok(slot) = slots.clone().try_acquire_owned() else {
             tracing::debug!(
@@ -363,7 +444,7 @@ pub async fn serve(
         let (app, draining) = (app.clone(), draining.clone());
         tokio::spawn(async move {
             serve_one(stream, app, limits, draining).await;
-            drop(slot);
+            drop((slot, client));
         });
     }
     drop(listener);

@@ -7,7 +7,8 @@
 
 use std::collections::HashSet;
 use std::io::{Read, Write};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
+use std::sync::Arc;
 
 use axum::extract::multipart::{Field, Multipart, MultipartError};
 use axum::http::StatusCode;
@@ -19,6 +20,7 @@ use crate::engine::methods::{InputUse, Registry};
 use crate::engine::pipeline::checked_method;
 use crate::service::config::ServeConfig;
 use crate::service::problem_table::{texture_size_problem, transfer_problem};
+use crate::service::store::BlobStore;
 
 mod checks;
 
@@ -70,30 +72,42 @@ pub struct Upload {
 }
 
 /// Temporary files of one upload, directly inside the blob store's temp folder (so the store
-/// can take them by rename); those still there when this is dropped are deleted.
-#[derive(Debug)]
+/// can take them by rename), created through [`BlobStore::create_temp`]; those still there when
+/// this is dropped are deleted.
 pub struct TempFiles {
+    blobs: Arc<dyn BlobStore>,
     dir: PathBuf,
     prefix: String,
     made: std::sync::Mutex<Vec<PathBuf>>,
 }
 
+impl std::fmt::Debug for TempFiles {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("TempFiles")
+            .field("dir", &self.dir)
+            .field("prefix", &self.prefix)
+            .finish_non_exhaustive()
+    }
+}
+
 impl TempFiles {
-    fn new(dir: &Path) -> Self {
+    fn new(blobs: Arc<dyn BlobStore>) -> Self {
         Self {
-            dir: dir.to_path_buf(),
+            dir: blobs.temp_dir(),
+            blobs,
             prefix: format!("upload-{}", uuid::Uuid::new_v4().simple()),
             made: Default::default(),
         }
     }
 
-    /// A new file path, removed on drop unless moved away.
-    fn path(&self, tag: &str) -> PathBuf {
+    /// Creates a new file (removed on drop unless moved away) and a writer into it.
+    fn create(&self, tag: &str) -> Result<(PathBuf, Box<dyn Write + Send>), ApiError> {
         let p = self.dir.join(format!("{}-{tag}", self.prefix));
         if let Ok(mut m) = self.made.lock() {
             m.push(p.clone());
         }
-        p
+        let file = self.blobs.create_temp(&p).map_err(ApiError::io)?;
+        Ok((p, file))
     }
 }
 
@@ -171,15 +185,15 @@ fn check_name(part: &str, name: &str) -> Result<(), ApiError> {
     Ok(())
 }
 
-/// Streams one part to `path`, hashing it; refuses more than `cap` bytes.
+/// Streams one part into `file`, hashing it; refuses more than `cap` bytes. A failed write
+/// (a full disk) is [`ApiError::io`]: 507 without the OS text.
 async fn save_part(
     field: &mut Field<'_>,
-    path: &Path,
+    mut file: Box<dyn Write + Send>,
     part: &str,
     cap: u64,
     config: &ServeConfig,
 ) -> Result<(u64, [u8; 32]), ApiError> {
-    let mut file = std::fs::File::create(path).map_err(ApiError::io)?;
     let mut hasher = Sha256::new();
     let mut len = 0u64;
     while let Some(chunk) = field
@@ -201,6 +215,7 @@ async fn save_part(
         // takes the file.
         file.write_all(&chunk).map_err(ApiError::io)?;
     }
+    file.flush().map_err(ApiError::io)?;
     Ok((len, hasher.finalize().into()))
 }
 
@@ -243,10 +258,10 @@ pub async fn read_upload(
     multipart: Multipart,
     config: &ServeConfig,
     registry: &Registry,
-    temp_root: &Path,
+    blobs: Arc<dyn BlobStore>,
 ) -> Result<Upload, ApiError> {
-    std::fs::create_dir_all(temp_root).map_err(ApiError::io)?;
-    let temp = std::sync::Arc::new(TempFiles::new(temp_root));
+    std::fs::create_dir_all(blobs.temp_dir()).map_err(ApiError::io)?;
+    let temp = std::sync::Arc::new(TempFiles::new(blobs));
     let mut request = Sha256::new();
     let received = receive_parts(multipart, config, &temp, &mut request).await?;
     let constraints_bytes = match &received.constraints {
@@ -389,13 +404,13 @@ async fn receive_parts(
             .map(str::to_string)
             .unwrap_or_else(|| part.clone());
         check_name(&part, &name)?;
-        let path = temp.path(&format!("part-{count}"));
+        let (path, file) = temp.create(&format!("part-{count}"))?;
         let cap = if part == "constraints" {
             MAX_CONSTRAINTS_BYTES as u64
         } else {
             config.max_part_bytes
         };
-        let (_, digest) = save_part(&mut field, &path, &part, cap, config).await?;
+        let (_, digest) = save_part(&mut field, file, &part, cap, config).await?;
         for piece in [part.as_bytes(), &[0], name.as_bytes(), &[0], &digest] {
             request.update(piece);
         }
@@ -548,11 +563,17 @@ fn unzip(
         };
         let name = rel.to_string_lossy().replace('\\', "/");
         check_name(side, &name)?;
-        let path = temp.path(&format!("{side}-zip-{i}"));
-        let mut file = std::fs::File::create(&path).map_err(ApiError::io)?;
+        let (path, mut file) = temp.create(&format!("{side}-zip-{i}"))?;
         // Never trust the declared size: copy at most cap + 1 bytes.
         let copied = std::io::copy(&mut (&mut entry).take(config.max_part_bytes + 1), &mut file)
-            .map_err(|e| bad(format!("{side}: {name}: {e}")))?;
+            .map_err(|e| {
+                if crate::service::store::is_full(&e) {
+                    // The archive is fine, the server's disk is not.
+                    ApiError::io(e)
+                } else {
+                    bad(format!("{side}: {name}: {e}"))
+                }
+            })?;
         if copied > config.max_part_bytes {
             return Err(ApiError::too_large(
                 side,

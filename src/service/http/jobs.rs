@@ -217,7 +217,7 @@ async fn submit_multipart(
         multipart,
         &state.config,
         &state.registry,
-        &state.blobs.temp_dir(),
+        state.blobs.clone(),
     )
     .await?;
     let id = Uuid::now_v7();

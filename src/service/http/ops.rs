@@ -1,5 +1,6 @@
 //! Operations: `GET /healthz` (the process answers), `GET /readyz` (the server accepts work:
-//! not draining, storage healthy, disk space above `min_free_bytes`, queue not full), and the retention sweep that prunes finished jobs older than
+//! not draining, storage passing its live probe, disk space above `min_free_bytes`, queue not
+//! full), and the retention sweep that prunes finished jobs older than
 //! the TTL together with their files, and removes partial uploads a crash left in the blob
 //! store's temp dir (untouched for an hour). Unfinished jobs are never pruned.
 
@@ -22,7 +23,8 @@ pub async fn healthz() -> Json<Value> {
 }
 
 /// Readiness: the server accepts work. Not ready (503, with `Retry-After`) while it drains,
-/// for `storage_retry_secs` after a storage failure (a full disk, a failing database write),
+/// while the storage fails its live probe (a blob write and a rolled-back database write, at
+/// most every 2 s and at once after a failed write: a full disk, a locked or full database),
 /// when the job store does not answer, when the data directory's free space is under
 /// `min_free_bytes`, or when `queue_len` jobs are waiting. It keeps answering during a drain.
 #[utoipa::path(get, path = "/readyz", tag = "operations", security(()),
@@ -41,14 +43,12 @@ pub async fn readyz(State(state): State<AppState>) -> Result<Json<Value>, ApiErr
             "the server is draining".into(),
         ));
     }
-    let retry = state.config.storage_retry_secs;
-    if state.runner.storage_failing() {
+    if !state.runner.storage_healthy().await {
         return Err(unready(
             "storage-failing",
             "Storage failing",
-            format!("a storage write failed within the last {retry} s (see the server log)"),
-        )
-        .limit("storage_retry_secs", retry));
+            "a probe write to the blob store or the job database failed just now (see the server log)".into(),
+        ));
     }
     let jobs = state.jobs.clone();
     let counts = blocking(move || jobs.counts()).await.map_err(|_| {

@@ -50,7 +50,8 @@ use crate::engine::pipeline::{
 };
 use crate::service::model::{ArtifactRef, JobProgress, JobRecord, JobStatus, ModelFiles, Problem};
 use crate::service::problem_table::{
-    constraints_problem, internal_problem, panic_problem, texture_size_problem, transfer_problem,
+    constraints_problem, internal_problem, panic_problem, result_not_stored_problem,
+    texture_size_problem, transfer_problem,
 };
 use crate::service::store::{BlobStore, Finish, JobStore, StoreError};
 
@@ -62,8 +63,11 @@ const DISPATCH_TICK: Duration = Duration::from_secs(1);
 const EARLY_CANCEL_TTL: Duration = Duration::from_secs(30);
 /// After the shutdown deadline, how long cancelled jobs get to stop.
 const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
-/// Tries of storing a job's terminal state.
+/// Quick tries of storing a job's terminal state.
 const FINISH_ATTEMPTS: u32 = 4;
+/// Slow rounds (one per `storage_retry`) before a success that cannot be recorded is recorded
+/// as a failure instead (see [`Runner::store_finish`]).
+pub const FINISH_SLOW_ROUNDS: u32 = 5;
 /// Capacity of the event channel (slow subscribers miss events and see `Lagged`).
 const EVENT_CAPACITY: usize = 1024;
 
@@ -182,6 +186,8 @@ pub struct Runner {
     dispatcher: Mutex<Option<tokio::task::JoinHandle<()>>>,
     /// When storage last failed (see [`storage`]); no job is claimed for `storage_retry` after.
     storage_failed: Mutex<Option<Instant>>,
+    /// The last storage probe of `/readyz` ([`Runner::storage_healthy`]).
+    probed: Mutex<Option<storage::Probed>>,
 }
 
 #[path = "runner_storage.rs"]
@@ -272,6 +278,7 @@ impl Runner {
             hook: Mutex::new(None),
             dispatcher: Mutex::new(None),
             storage_failed: Mutex::new(None),
+            probed: Mutex::new(None),
         });
         let me = Arc::clone(&runner);
         let task = handle.spawn(async move { me.dispatch().await });
@@ -594,11 +601,38 @@ impl Runner {
         self.store_finish(id, finish).await;
     }
 
-    /// Moves the job to its terminal state in the store and announces it. Transient store
-    /// failures (a locked or full disk) are retried a few times with backoff; a conflict (the
-    /// job is already terminal) or a missing job is not. A job whose finish could not be
-    /// stored stays `processing` and is re-run by the next start's recovery.
+    /// Moves the job to its terminal state in the store and announces it. A store that refuses
+    /// the write [`FINISH_ATTEMPTS`] times in a row (with 100 ms × 4ⁿ backoff) is retried
+    /// slowly: the worker slot stays taken (the job is not over), claims pause, and the finish is
+    /// tried again every `storage_retry`; after [`FINISH_SLOW_ROUNDS`] such rounds a success
+    /// that still cannot be recorded becomes a failure with the stable type
+    /// `/problems/result-not-stored` (a smaller record; the outputs stay until the job is
+    /// pruned), retried the same way. Only a shutdown ends the retries early: the job is then
+    /// left processing and the next start's recovery re-runs it.
     async fn store_finish(&self, id: Uuid, finish: Finish) {
+        let mut finish = finish;
+        let mut rounds = 0u32;
+        while !self.try_finish(id, &finish).await {
+            if self.stopping.load(Ordering::SeqCst) {
+                tracing::warn!(%id, "stopping with the job's end unrecorded; recovery re-runs it");
+                return;
+            }
+            if rounds == FINISH_SLOW_ROUNDS && matches!(finish, Finish::Succeeded { .. }) {
+                tracing::error!(%id, rounds, "the job's success cannot be recorded; failing it");
+                finish = Finish::Failed {
+                    error: result_not_stored_problem(),
+                    report: None,
+                };
+            }
+            self.note_storage_failure();
+            tokio::time::sleep(self.config.storage_retry).await;
+            rounds += 1;
+        }
+    }
+
+    /// [`FINISH_ATTEMPTS`] quick tries of storing `finish`. True when the job's end is settled:
+    /// stored, or already terminal / gone (a conflict or a missing job is not retried).
+    async fn try_finish(&self, id: Uuid, finish: &Finish) -> bool {
         let mut delay = Duration::from_millis(100);
         for attempt in 1..=FINISH_ATTEMPTS {
             let jobs = Arc::clone(&self.jobs);
@@ -607,11 +641,11 @@ impl Runner {
                 Ok(Ok(rec)) => {
                     tracing::info!(%id, status = rec.status.as_str(), "job finished");
                     self.emit(id, rec.status, rec.progress.clone(), rec.revision);
-                    return;
+                    return true;
                 }
                 Ok(Err(e @ (StoreError::Conflict { .. } | StoreError::NotFound(_)))) => {
                     tracing::warn!(%id, error = %e, "job not finished");
-                    return;
+                    return true;
                 }
                 Ok(Err(e)) => {
                     if e.is_storage_failure() {
@@ -621,9 +655,12 @@ impl Runner {
                 }
                 Err(e) => tracing::error!(%id, attempt, error = %e, "finishing the job panicked"),
             }
-            tokio::time::sleep(delay).await;
-            delay *= 4;
+            if attempt < FINISH_ATTEMPTS {
+                tokio::time::sleep(delay).await;
+                delay *= 4;
+            }
         }
+        false
     }
 }
 

@@ -8,6 +8,7 @@
 //! `tokio::task::spawn_blocking`. Blob keys are relative paths of `[A-Za-z0-9._-]` segments
 //! separated by `/` (e.g. `jobs/<id>/inputs/source/Fox.bin`), validated by the blob store.
 
+use std::io::Write;
 use std::path::PathBuf;
 
 use chrono::{DateTime, Utc};
@@ -235,7 +236,17 @@ pub trait JobStore: Send + Sync + 'static {
     ) -> Result<Vec<JobRecord>, StoreError>;
     /// Counts per status and the age of the queue.
     fn counts(&self) -> Result<StatusCounts, StoreError>;
+    /// A cheap live check that the store takes writes now, for `/readyz`. Default: a read
+    /// ([`JobStore::counts`]).
+    fn probe(&self) -> Result<(), StoreError> {
+        self.counts().map(|_| ())
+    }
 }
+
+/// Key of the blob [`BlobStore::probe`] rewrites (outside `jobs/`, so no job owns it).
+pub const PROBE_KEY: &str = "health/probe";
+/// Bytes [`BlobStore::probe`] writes: one page, so a disk without a free block fails it.
+pub const PROBE_BYTES: usize = 4096;
 
 /// Durable blobs (uploads and results).
 pub trait BlobStore: Send + Sync + 'static {
@@ -253,6 +264,19 @@ pub trait BlobStore: Send + Sync + 'static {
     fn delete_prefix(&self, prefix: &str) -> Result<(), StoreError>;
     /// A folder on the same file system for streaming uploads before [`BlobStore::put_file`].
     fn temp_dir(&self) -> PathBuf;
+    /// Creates (truncating) the file `path` inside [`BlobStore::temp_dir`] and returns a writer
+    /// for the upload being spooled into it; the file is later taken by
+    /// [`BlobStore::put_file`] or removed by the caller. Default: `std::fs::File::create`.
+    /// (The seam through which tests make the spooling fail, e.g. with `ENOSPC`.)
+    fn create_temp(&self, path: &std::path::Path) -> std::io::Result<Box<dyn Write + Send>> {
+        Ok(Box::new(std::fs::File::create(path)?))
+    }
+    /// A cheap live check that blobs can be written now, for `/readyz`: by default one
+    /// [`BlobStore::put`] of [`PROBE_BYTES`] under the key [`PROBE_KEY`] (a temporary file,
+    /// written, fsynced and renamed over the previous probe: the path every blob write takes).
+    fn probe(&self) -> Result<(), StoreError> {
+        self.put(PROBE_KEY, &[0u8; PROBE_BYTES])
+    }
     /// Removes files of [`BlobStore::temp_dir`] not modified for `older_than`: partial uploads
     /// left by a crash (an upload in flight writes its file at least every body timeout).
     /// Returns how many were removed.

@@ -49,6 +49,9 @@ pub const MAX_PAGE: usize = 500;
 const BUSY_TIMEOUT: Duration = Duration::from_secs(1);
 /// Read-only connections.
 const READERS: usize = 4;
+/// Bytes the `/readyz` probe asks the database for (four 4 KiB pages), in a transaction it
+/// rolls back.
+const PROBE_DB_BYTES: i64 = 16384;
 
 const SCHEMA_V1: &str = "
 CREATE TABLE IF NOT EXISTS jobs (
@@ -172,6 +175,27 @@ impl SqliteJobStore {
     /// The database file.
     pub fn path(&self) -> &Path {
         &self.path
+    }
+
+    /// Caps the database at `max_pages` pages (`PRAGMA max_page_count` on the writer
+    /// connection; SQLite never sets it below the current size) and returns the cap in force.
+    /// A write that needs more pages fails as `SQLITE_FULL` ([`StoreError::DatabaseFull`]): a
+    /// quota an operator may set, and how tests make the database report a full disk.
+    pub fn limit_pages(&self, max_pages: u64) -> Result<u64, StoreError> {
+        let conn = lock(&self.writer);
+        let cap: i64 = conn.query_row(
+            &format!("PRAGMA max_page_count = {}", max_pages.min(i64::MAX as u64)),
+            [],
+            |r| r.get(0),
+        )?;
+        Ok(cap as u64)
+    }
+
+    /// Pages the database has now.
+    pub fn page_count(&self) -> Result<u64, StoreError> {
+        let conn = lock(&self.writer);
+        let n: i64 = conn.query_row("PRAGMA page_count", [], |r| r.get(0))?;
+        Ok(n as u64)
     }
 
     /// A read-only connection: the first free one, else round robin.
@@ -619,6 +643,21 @@ impl JobStore for SqliteJobStore {
             )?;
             Ok(removed)
         })
+    }
+
+    /// Takes the write lock and inserts [`PROBE_DB_BYTES`] into `idempotency_keys`, then rolls
+    /// back: fails as busy while another writer holds the lock, and as full when the database
+    /// cannot get the pages (a `max_page_count` cap, or no room to grow); commits nothing.
+    fn probe(&self) -> Result<(), StoreError> {
+        let mut conn = lock(&self.writer);
+        let tx = conn.transaction_with_behavior(TransactionBehavior::Immediate)?;
+        tx.execute(
+            "INSERT INTO idempotency_keys (key, request_hash, job_id, created_at)
+             VALUES ('readyz-probe', zeroblob(?1), '', 0)",
+            [PROBE_DB_BYTES],
+        )?;
+        tx.rollback()?;
+        Ok(())
     }
 
     fn counts(&self) -> Result<StatusCounts, StoreError> {
