@@ -92,7 +92,7 @@ enum Command {
         /// Runs per case (the median is reported).
         #[arg(long, default_value_t = 5)]
         runs: usize,
-        /// Which table: `project` (default), `meshmatch`, or `geometry` (the geometry core on a
+        /// Which table: `project` (default), `meshmatch`, `elastiface`, or `geometry` (the geometry core on a
         /// 64K-vertex sphere; needs no assets).
         #[arg(long, default_value = "project")]
         method: String,
@@ -150,9 +150,10 @@ fn main() -> ExitCode {
         } => match method.as_str() {
             "project" => cli::bench::run(&assets, runs),
             "meshmatch" => cli::bench_meshmatch::run(&assets, runs),
+            "elastiface" => cli::bench_elastiface::run(&assets, runs),
             "geometry" => cli::bench_geometry::run(runs),
             other => Err(format!(
-                "no benchmark for method {other:?}: expected project, meshmatch or geometry"
+                "no benchmark for method {other:?}: expected project, meshmatch, elastiface or geometry"
             )),
         },
         #[cfg(feature = "service")]

@@ -10,14 +10,35 @@ use serde_json::{json, Value};
 use crate::common::assert_validator_clean;
 use crate::elastiface_common::*;
 
-/// Rotation of the target's tessellation (about (1, 1, 0)/√2 by 0.7 rad).
+/// One analytic pair: bump height, stretch and the turn of the target's tessellation.
+#[derive(Clone, Copy, Debug)]
+struct Variant {
+    bump: f64,
+    stretch: [f64; 3],
+    turn: f64,
+}
+
+/// The pair every test but the sweep uses.
+const DEFAULT: Variant = Variant {
+    bump: 0.8,
+    stretch: [1.6, 1.0, 0.8],
+    turn: 0.7,
+};
+
+thread_local! {
+    /// The variant of this test thread (the sweep changes it on its own thread only).
+    static VARIANT: std::cell::Cell<Variant> = const { std::cell::Cell::new(DEFAULT) };
+}
+
+/// Rotation of the target's tessellation (about (1, 1, 0)/√2 by the variant's turn, 0.7 rad).
 fn rotate(p: [f64; 3]) -> [f64; 3] {
+    let turn = VARIANT.with(|v| v.get().turn);
     let k = [
         std::f64::consts::FRAC_1_SQRT_2,
         std::f64::consts::FRAC_1_SQRT_2,
         0.0,
     ];
-    let (s, c) = 0.7f64.sin_cos();
+    let (s, c) = turn.sin_cos();
     let kxp = [
         k[1] * p[2] - k[2] * p[1],
         k[2] * p[0] - k[0] * p[2],
@@ -27,11 +48,17 @@ fn rotate(p: [f64; 3]) -> [f64; 3] {
     std::array::from_fn(|i| p[i] * c + kxp[i] * s + k[i] * kp * (1.0 - c))
 }
 
-/// The known map: a Gaussian bump of height 0.8 around +z, then a stretch diag(1.6, 1, 0.8).
+/// The known map: a Gaussian bump (height 0.8 by default) around +z, then a stretch
+/// (diag(1.6, 1, 0.8) by default).
 fn f(p: [f64; 3]) -> [f64; 3] {
+    let v = VARIANT.with(|v| v.get());
     let d2 = p[0] * p[0] + p[1] * p[1] + (p[2] - 1.0).powi(2);
-    let h = 0.8 * (-d2 / 0.12).exp();
-    [1.6 * p[0], p[1], 0.8 * (p[2] + h)]
+    let h = v.bump * (-d2 / 0.12).exp();
+    [
+        v.stretch[0] * p[0],
+        v.stretch[1] * p[1],
+        v.stretch[2] * (p[2] + h),
+    ]
 }
 
 fn normalize(p: [f64; 3]) -> [f64; 3] {
@@ -216,6 +243,35 @@ fn report(out: &retex::engine::pipeline::TransferOutput) -> &Value {
 
 #[test]
 fn elastiface_bump_and_stretch_beats_snapping() {
+    bump_case("elastiface_bump.glb", 0.01);
+}
+
+/// The thresholds of `elastiface_bump_and_stretch_beats_snapping` over five pairs (bump height,
+/// stretch, tessellation turn); the figures are in the README's elastiface section.
+#[test]
+fn elastiface_bump_threshold_sweep() {
+    let variants = [
+        (0.5, [1.6, 1.0, 0.8], 0.3),
+        (1.0, [1.3, 1.2, 0.7], 1.2),
+        (0.8, [1.0, 1.0, 1.0], 0.7),
+        (0.6, [1.8, 0.9, 0.8], 2.0),
+    ];
+    for (k, (bump, stretch, turn)) in variants.into_iter().enumerate() {
+        VARIANT.with(|v| {
+            v.set(Variant {
+                bump,
+                stretch,
+                turn,
+            })
+        });
+        eprintln!("variant bump {bump} stretch {stretch:?} turn {turn}:");
+        // The 1 % holds on four of the five pairs; the bump without stretch measures
+        // 1.03 % (a gap, recorded in the README), hence 1.1 % here.
+        bump_case(&format!("elastiface_bump_sweep{k}.glb"), 0.011);
+    }
+}
+
+fn bump_case(name: &str, max_hausdorff: f64) {
     let pair = pair(1.0);
     let out = run_glbs(
         &pair.source_glb,
@@ -223,7 +279,7 @@ fn elastiface_bump_and_stretch_beats_snapping() {
         constraints(1.0, json!({})),
     )
     .unwrap();
-    assert_validator_clean(&out.model, "elastiface_bump.glb");
+    assert_validator_clean(&out.model, name);
     let r = report(&out);
     let asset = output_asset(&out);
     let fitted = &asset.primitives[0].positions;
@@ -270,7 +326,7 @@ fn elastiface_bump_and_stretch_beats_snapping() {
         mean < 0.5 * base_mean,
         "mean map error {mean} vs snapping {base_mean}"
     );
-    assert!(h < 0.01, "hausdorff {h}");
+    assert!(h < max_hausdorff, "hausdorff {h}");
     assert!(flipped < 1e-4, "flipped area {flipped}");
     assert!(res < 0.01, "correspondence residual {res}");
     assert!(psnr > 28.0, "re-laid texture psnr {psnr}");

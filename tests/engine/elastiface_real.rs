@@ -30,6 +30,21 @@ fn deform(p: [f64; 3], c: [f64; 3], d: f64) -> [f64; 3] {
     ]
 }
 
+/// The deformed copy of world positions (the deformation in units of their bounding box).
+pub fn deformed_copy(world: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in world {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let centre: [f64; 3] = std::array::from_fn(|k| 0.5 * (lo[k] + hi[k]));
+    let diag = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
+    world.iter().map(|p| deform(*p, centre, diag)).collect()
+}
+
 #[test]
 #[ignore = "needs the shared assets (../shared/assets)"]
 fn elastiface_deformed_head_back_onto_the_textured_head() {
@@ -85,6 +100,11 @@ fn elastiface_deformed_head_back_onto_the_textured_head() {
         .collect();
     let c = json!({"version": 1, "method": "elastiface", "correspondences": corr,
         "output": {"texture_size": 1024, "padding": 8}});
+    // The inputs, for the CLI and previews.
+    let dir = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/test-outputs");
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("elastiface_head_source.glb"), &source).unwrap();
+    std::fs::write(dir.join("elastiface_head_constraints.json"), c.to_string()).unwrap();
     let t0 = std::time::Instant::now();
     let out = run_glbs(&source, &std::fs::read(&path).unwrap_or_default(), c);
     // The head is a .gltf with an external buffer: load it through its blob set instead.

@@ -15,12 +15,16 @@
 //! 6. [`writeback`]: POSITION / NORMAL through the source's node transforms, or a morph target;
 //! 7. [`metrics`]: Hausdorff distance, flipped triangles and residuals for the report.
 //!
-//! Not implemented: the morphing of §5 (`params.blend`), `retex bench --method elastiface`.
-//! Known shortfalls (measured by the tests, 2026-12-01): on an open disc with boundary-loop
+//! Not implemented: the morphing of §5 (`params.blend`).
+//! Known shortfalls (measured by the tests, 2026-12-01/02): on an open disc with boundary-loop
 //! pairs one boundary vertex folds inward (0.9 % of the area flipped); a deformed copy of the
 //! Lee Perry-Smith scan fitted back onto it reaches a Hausdorff distance of 6.8 % of the
 //! diagonal with 0.3 % of the area flipped (the issue asks for 1 % and 0.01 %), although its mean
-//! correspondence error is half that of similarity + closest-point snapping.
+//! correspondence error is half that of similarity + closest-point snapping. The far points are
+//! the scan's nostril tunnels: the joint fairing collapses them, so the base stage's closest
+//! points carried to the original target land at the tunnel openings there (map error up to
+//! 13.7 % against 2.4 % on the base meshes), and the originals stage pins the template's tunnels
+//! to the openings. README "elastiface" lists the remedies tried.
 
 pub mod boundary;
 pub mod fairing;
