@@ -532,3 +532,54 @@ fn a_mask_image_the_method_reads_counts_against_the_budget() {
         "{e}"
     );
 }
+
+#[test]
+fn elastiface_on_inputs_too_large_for_its_solves_is_refused_before_it_runs() {
+    let registry = Registry::builtin();
+    let pairs: Vec<String> = (0..3)
+        .map(|i| {
+            format!(
+                r#"{{"source": {{"vertex": {{"mesh": 0, "primitive": 0, "index": {i}}}}},
+                     "target": {{"vertex": {{"mesh": 0, "primitive": 0, "index": {i}}}}}}}"#
+            )
+        })
+        .collect();
+    let constraints = Constraints::from_json(
+        format!(
+            r#"{{"version": 1, "method": "elastiface", "output": {{"texture_size": 16}},
+                 "correspondences": [{}]}}"#,
+            pairs.join(",")
+        )
+        .as_bytes(),
+    )
+    .unwrap();
+    // 2 × 2,000 instanced triangles: 4,000 × log₂ → 12 × 160 bytes ≈ 7.7 MB > 4 MiB; the
+    // params alone (a 16² texture) are within it.
+    let limits = IngestLimits {
+        max_method_bytes: 4 << 20,
+        ..IngestLimits::default()
+    };
+    assert!(checked_method(&registry, &constraints, &limits).is_ok());
+    let glb = common::textured_triangle_glb(&[common::small_png(2, 2)], 2000);
+    let (src, tgt) = (glb_blobs(glb.clone()), glb_blobs(glb));
+    let input = TransferInput::pair(
+        ModelInput {
+            main: "m.glb",
+            blobs: &src,
+        },
+        ModelInput {
+            main: "m.glb",
+            blobs: &tgt,
+        },
+        constraints,
+    )
+    .with_limits(limits);
+    match transfer(&input, &Control::new()).unwrap_err() {
+        TransferError::WorkingSet { field, bytes, max } => {
+            assert_eq!(field, "inputs");
+            assert_eq!(max, 4 << 20);
+            assert!(bytes > 4000 * 12 * 160, "{bytes}");
+        }
+        other => panic!("{other}"),
+    }
+}

@@ -135,6 +135,25 @@ impl Method for Elastiface {
         refs::check_correspondences(constraints)
     }
 
+    /// The solves (growing as `T log T` in the input triangles) plus one baked texture.
+    fn working_set(
+        &self,
+        constraints: &Constraints,
+        input_triangles: u64,
+    ) -> Option<super::WorkingSet> {
+        let texture = super::texture_working_set(constraints);
+        let solver = system::solver_working_set_bytes(input_triangles);
+        let field = if solver > texture.bytes {
+            "inputs"
+        } else {
+            texture.field
+        };
+        Some(super::WorkingSet {
+            bytes: solver.saturating_add(texture.bytes),
+            field,
+        })
+    }
+
     fn run(&self, input: &MethodInput<'_>, control: &Control) -> Result<MethodOutput, MethodError> {
         let params = ElastifaceParams::from_constraints(input.constraints)?;
         let (edits, report) = run(
