@@ -420,10 +420,18 @@ fn elastiface_head_onto_suzanne_with_separate_eye_components() {
     let out = retex::engine::pipeline::transfer(&input, &retex::engine::control::Control::new())
         .expect("head onto Suzanne");
     assert_validator_clean(&out.model, "elastiface_head_to_suzanne.glb");
+    if let Ok(dir) = std::env::var("RETEX_ELASTIFACE_OUT") {
+        std::fs::write(
+            std::path::Path::new(&dir).join("head_to_suzanne.glb"),
+            &out.model,
+        )
+        .unwrap();
+    }
     let r = &out.report.method_report;
     eprintln!(
-        "head onto Suzanne: target surface {}, unanchored components {}, fairing area ratio {}, \
+        "head onto Suzanne: warnings {:?}; target surface {}, unanchored components {}, fairing area ratio {}, \
          hausdorff {}, flipped {}, residuals {}, timings {}",
+        out.report.warnings,
         r["target_surface"],
         r["fairing"]["unanchored_components"],
         r["fairing"]["area_ratio"],
@@ -434,8 +442,13 @@ fn elastiface_head_onto_suzanne_with_separate_eye_components() {
     );
     // Suzanne's two eyes carry no reference point: anchored weakly in place (fairing.rs).
     assert_eq!(r["fairing"]["unanchored_components"], json!([0, 2]));
+    // Measured 2026-12-02: Hausdorff 4.8 % (fitted → Suzanne 3.2 %, mean 0.045 %), 5.1 % of
+    // the area flipped, residual rms 0.26 %; the fairing's collapse guard fires (16 % of the
+    // area). These bounds guard against regressions only (the issue's 1 % is for faces).
     let h = r["hausdorff"]["max"].as_f64().unwrap();
     let mean = r["hausdorff"]["source_to_target"]["mean"].as_f64().unwrap();
-    assert!(h.is_finite() && mean < 0.01, "hausdorff {h}, mean {mean}");
+    assert!(h < 0.08 && mean < 0.002, "hausdorff {h}, mean {mean}");
+    let flipped = r["flipped"]["area_fraction"].as_f64().unwrap();
+    assert!(flipped < 0.1, "flipped area {flipped}");
     assert!(r["residuals"]["rms"].as_f64().unwrap() < 0.01);
 }
