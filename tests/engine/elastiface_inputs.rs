@@ -6,15 +6,23 @@
 //! The code-made pairs: a UV sphere template onto an independently tessellated (turned) sphere
 //! stretched by `diag(s)`; the colour of a target point is `color(q)` of the unit-sphere point `q`
 //! it came from, so a perfect fit shows `color(p/|p|)` at the template point `p`. Each case runs
-//! over three stretches (the `STRETCHES` sweep; figures in README "elastiface").
+//! over three stretches (the `STRETCHES` sweep; figures in README "elastiface"). The real-asset
+//! tests use `tests/data/elastiface/head_to_suzanne.json` both ways; set `RETEX_ELASTIFACE_OUT`
+//! to a folder to keep the head → Suzanne GLB for `retex preview`.
 
+use retex::engine::asset::constraints::Constraints;
 use retex::engine::asset::BlobSet;
+use retex::engine::control::Control;
+use retex::engine::pipeline::{transfer, ModelInput, TransferInput, TransferOutput};
 use retex::engine::spatial::Bvh;
 use retex::engine::texture::bake::rasterize_uv_layout;
 use serde_json::{json, Value};
 
 use crate::common::{assert_validator_clean, load_path, shared_asset};
 use crate::elastiface_common::*;
+
+const HEAD: &str = "src_lee_perry_smith_head/LeePerrySmith_textured_derived.gltf";
+const SUZANNE: &str = "src_suzanne_khronos/glTF/Suzanne.gltf";
 
 /// The stretch sweep: anisotropic, elongated, and mixed.
 const STRETCHES: [[f64; 3]; 3] = [[1.4, 1.0, 0.8], [1.0, 1.3, 1.0], [0.8, 1.2, 1.5]];
@@ -395,30 +403,15 @@ fn elastiface_recomputes_tangents_on_the_fitted_source() {
 #[test]
 #[ignore = "needs the shared assets (../shared/assets)"]
 fn elastiface_head_onto_suzanne_with_separate_eye_components() {
-    let head = shared_asset("src_lee_perry_smith_head/LeePerrySmith_textured_derived.gltf");
-    let suzanne = shared_asset("src_suzanne_khronos/glTF/Suzanne.gltf");
-    let _ = load_path(&suzanne);
-    let (hm, hb) = BlobSet::from_path(&head).expect("read head");
-    let (sm, sb) = BlobSet::from_path(&suzanne).expect("read suzanne");
-    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/data/elastiface/head_to_suzanne.json");
-    let c = retex::engine::asset::constraints::Constraints::from_json(
-        &std::fs::read(path).expect("constraints file"),
+    let c: Value = serde_json::from_slice(
+        &std::fs::read(
+            std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                .join("tests/data/elastiface/head_to_suzanne.json"),
+        )
+        .expect("constraints file"),
     )
-    .expect("constraints");
-    let input = retex::engine::pipeline::TransferInput::pair(
-        retex::engine::pipeline::ModelInput {
-            main: &hm,
-            blobs: &hb,
-        },
-        retex::engine::pipeline::ModelInput {
-            main: &sm,
-            blobs: &sb,
-        },
-        c,
-    );
-    let out = retex::engine::pipeline::transfer(&input, &retex::engine::control::Control::new())
-        .expect("head onto Suzanne");
+    .unwrap();
+    let out = run_shared(HEAD, SUZANNE, &c);
     assert_validator_clean(&out.model, "elastiface_head_to_suzanne.glb");
     if let Ok(dir) = std::env::var("RETEX_ELASTIFACE_OUT") {
         std::fs::write(
@@ -451,4 +444,75 @@ fn elastiface_head_onto_suzanne_with_separate_eye_components() {
     let flipped = r["flipped"]["area_fraction"].as_f64().unwrap();
     assert!(flipped < 0.1, "flipped area {flipped}");
     assert!(r["residuals"]["rms"].as_f64().unwrap() < 0.01);
+}
+
+/// Runs `elastiface` between two shared assets with a constraints file of `tests/data`.
+fn run_shared(source: &str, target: &str, constraints: &Value) -> TransferOutput {
+    let (sm, sb) = BlobSet::from_path(&shared_asset(source)).expect("read source");
+    let (tm, tb) = BlobSet::from_path(&shared_asset(target)).expect("read target");
+    let c = Constraints::from_json(constraints.to_string().as_bytes()).expect("constraints");
+    let input = TransferInput::pair(
+        ModelInput {
+            main: &sm,
+            blobs: &sb,
+        },
+        ModelInput {
+            main: &tm,
+            blobs: &tb,
+        },
+        c,
+    );
+    transfer(&input, &Control::new()).expect("transfer")
+}
+
+#[test]
+#[ignore = "needs the shared assets (../shared/assets)"]
+fn elastiface_suzanne_template_keeps_valid_tangents() {
+    // Suzanne as the template (TANGENT, UV seams, eyes as separate components) onto the head:
+    // the head → Suzanne landmarks with the sides swapped.
+    let mut c: Value = serde_json::from_slice(
+        &std::fs::read(
+            std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                .join("tests/data/elastiface/head_to_suzanne.json"),
+        )
+        .expect("constraints file"),
+    )
+    .unwrap();
+    for pair in c["correspondences"].as_array_mut().unwrap() {
+        let s = pair["source"].take();
+        pair["source"] = pair["target"].take();
+        pair["target"] = s;
+    }
+    let out = run_shared(SUZANNE, HEAD, &c);
+    assert_validator_clean(&out.model, "elastiface_suzanne_to_head.glb");
+    let r = &out.report.method_report;
+    let t = attribute(&out.model, "TANGENT", 4);
+    let n = attribute(&out.model, "NORMAL", 3);
+    let (mut worst_len, mut worst_dot) = (0.0f64, 0.0f64);
+    for (t, n) in t.iter().zip(&n) {
+        let tv: Vec<f64> = t[..3].iter().map(|c| *c as f64).collect();
+        let nv: Vec<f64> = n.iter().map(|c| *c as f64).collect();
+        worst_len = worst_len.max((dot(&tv, &tv).sqrt() - 1.0).abs());
+        worst_dot = worst_dot.max(dot(&tv, &nv).abs());
+        assert!(t[3] == 1.0 || t[3] == -1.0, "tangent w {}", t[3]);
+    }
+    eprintln!(
+        "Suzanne onto the head: {} tangents, max | |t| - 1 | {worst_len:.1e}, max |t·n| \
+         {worst_dot:.1e}; unanchored components {}, hausdorff {}, flipped {}",
+        t.len(),
+        r["fairing"]["unanchored_components"],
+        r["hausdorff"]["max"],
+        r["flipped"]["area_fraction"]
+    );
+    assert_eq!(
+        t.len(),
+        load_path(&shared_asset(SUZANNE)).primitives[0]
+            .positions
+            .len()
+    );
+    assert!(
+        worst_len < 1e-3 && worst_dot < 1e-3,
+        "{worst_len} {worst_dot}"
+    );
+    assert_eq!(r["fairing"]["unanchored_components"], json!([2, 0]));
 }
