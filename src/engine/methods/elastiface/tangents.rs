@@ -68,7 +68,7 @@ fn is_unit(v: &[f32]) -> bool {
     l2.is_finite() && (l2 - 1.0).abs() < 1e-3
 }
 
-/// A unit vector orthogonal to the unit `n`.
+/// A unit vector orthogonal to the unit `n` (+x if `n` is not a usable direction).
 fn any_orthogonal(n: [f32; 3]) -> [f32; 3] {
     let a = if n[0].abs() < 0.9 {
         [1.0, 0.0, 0.0]
@@ -78,7 +78,12 @@ fn any_orthogonal(n: [f32; 3]) -> [f32; 3] {
     let d = a[0] * n[0] + a[1] * n[1] + a[2] * n[2];
     let t = [a[0] - d * n[0], a[1] - d * n[1], a[2] - d * n[2]];
     let l = (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt();
-    t.map(|c| c / l)
+    if l.is_finite() && l > 1e-6 {
+        t.map(|c| c / l)
+    } else {
+        // A zero or non-finite normal (kept from the input on a vertex without a face).
+        [1.0, 0.0, 0.0]
+    }
 }
 
 /// MikkTSpace tangents (xyz unit, w = ±1) of primitive `p` with the given mesh-local positions
