@@ -143,6 +143,17 @@ fn push_aligned(bin: &mut Vec<u8>, bytes: &[u8]) -> (usize, usize) {
 /// A GLB of one mesh (one primitive, one node with `scale`), with a base-colour texture when
 /// `png` is given.
 pub fn mesh_glb(mesh: &MeshData, png: Option<&[u8]>, node_scale: f64) -> Vec<u8> {
+    mesh_glb_with(mesh, png, node_scale, &[])
+}
+
+/// [`mesh_glb`] with extra float vertex attributes: (name, components, flat values), e.g.
+/// `("COLOR_0", 4, ...)`, `("NORMAL", 3, ...)`, `("TANGENT", 4, ...)`.
+pub fn mesh_glb_with(
+    mesh: &MeshData,
+    png: Option<&[u8]>,
+    node_scale: f64,
+    extra: &[(&str, usize, Vec<f32>)],
+) -> Vec<u8> {
     let mut bin = Vec::new();
     let pos: Vec<u8> = mesh
         .positions
@@ -174,6 +185,15 @@ pub fn mesh_glb(mesh: &MeshData, png: Option<&[u8]>, node_scale: f64) -> Vec<u8>
         accessors.push(json!({"bufferView": views.len() - 1, "componentType": 5126,
             "count": uvs.len(), "type": "VEC2"}));
         attributes["TEXCOORD_0"] = json!(accessors.len() - 1);
+    }
+    for (name, n, values) in extra {
+        let b: Vec<u8> = values.iter().flat_map(|c| c.to_le_bytes()).collect();
+        let (o, l) = push_aligned(&mut bin, &b);
+        views.push(json!({"buffer": 0, "byteOffset": o, "byteLength": l, "target": 34962}));
+        let kind = ["SCALAR", "VEC2", "VEC3", "VEC4"][n - 1];
+        accessors.push(json!({"bufferView": views.len() - 1, "componentType": 5126,
+            "count": values.len() / n, "type": kind}));
+        attributes[*name] = json!(accessors.len() - 1);
     }
     let b: Vec<u8> = mesh.indices.iter().flat_map(|c| c.to_le_bytes()).collect();
     let (o, l) = push_aligned(&mut bin, &b);

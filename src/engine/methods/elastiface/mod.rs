@@ -13,6 +13,7 @@
 //!    originals starting from the base meshes' closest points;
 //! 5. [`texture`]: texture matching (§4) through the shared texel loop;
 //! 6. [`writeback`]: POSITION / NORMAL through the source's node transforms, or a morph target;
+//!    [`tangents`]: TANGENT recomputed with MikkTSpace;
 //! 7. [`metrics`]: Hausdorff distance, flipped triangles and residuals for the report.
 //!
 //! Not implemented: the morphing of §5 (`params.blend`).
@@ -34,6 +35,7 @@ pub mod params;
 pub mod refs;
 pub mod register;
 pub mod system;
+pub mod tangents;
 pub mod texture;
 pub mod writeback;
 

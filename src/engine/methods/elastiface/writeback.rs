@@ -5,7 +5,8 @@
 //! brought into the primitive's mesh-local frame through the inverse of its node's world
 //! transform. NORMAL (where present) is recomputed from the fitted welded surface (area-weighted
 //! face normals) and carried to local space with the transpose of the node's linear part; a
-//! TANGENT no longer fits and is removed (the viewer regenerates it). A vertex that lies on no
+//! TANGENT is recomputed with MikkTSpace on the written positions and normals ([`super::tangents`]),
+//! or removed if the primitive lacks the UV set it follows. A vertex that lies on no
 //! surviving (non-degenerate) face (e.g. the corner of a triangle dropped as degenerate) has no
 //! welded vertex: it moves with the closest point of the source surface (same face and
 //! barycentric coordinates on the fitted surface).
@@ -20,10 +21,11 @@
 use std::collections::HashMap;
 
 use crate::engine::asset::edits::{AttributeData, Edit, MorphDeltas};
-use crate::engine::asset::{Asset, MeshInstance};
+use crate::engine::asset::{Asset, MeshInstance, Primitive};
 use crate::engine::math::{cross, normalize, sub};
 use crate::engine::mesh::Surface;
 
+use super::tangents::mikktspace_tangents;
 use super::MethodError;
 
 /// Per primitive, per vertex: the welded vertex of the (first) instance, or `u32::MAX`.
@@ -142,7 +144,7 @@ pub struct Placement<'a> {
     pub morph: bool,
 }
 
-/// The geometry edits (POSITION, NORMAL, TANGENT removal, or the morph target).
+/// The geometry edits (POSITION, NORMAL, TANGENT, or the morph target).
 ///
 /// # Errors
 /// [`MethodError::UnusableInput`] for a node transform that cannot be inverted.
@@ -189,32 +191,27 @@ pub fn geometry_edits(source: &Asset, place: &Placement<'_>) -> Result<Vec<Edit>
             edits.push(Edit::SetAttribute {
                 primitive: p,
                 name: "POSITION".into(),
-                data: AttributeData::Vec3(pos),
+                data: AttributeData::Vec3(pos.clone()),
             });
-            if let Some(old) = &prim.normals {
-                let n: Vec<[f32; 3]> = (0..prim.positions.len())
-                    .map(|v| match map[v] {
-                        u32::MAX => old[v],
-                        w => {
-                            let n = normalize(to_world.normal_to_local(normals[w as usize]));
-                            if n.iter().all(|c| c.is_finite()) && n != [0.0; 3] {
-                                n.map(|c| c as f32)
-                            } else {
-                                old[v]
-                            }
-                        }
-                    })
-                    .collect();
+            let n = local_normals(prim, map, &normals, &to_world);
+            if prim.normals.is_some() {
                 edits.push(Edit::SetAttribute {
                     primitive: p,
                     name: "NORMAL".into(),
-                    data: AttributeData::Vec3(n),
+                    data: AttributeData::Vec3(n.clone()),
                 });
             }
             if has_tangents(source, p) {
-                edits.push(Edit::RemoveAttribute {
-                    primitive: p,
-                    name: "TANGENT".into(),
+                edits.push(match mikktspace_tangents(source, p, &pos, &n) {
+                    Some(t) => Edit::SetAttribute {
+                        primitive: p,
+                        name: "TANGENT".into(),
+                        data: AttributeData::Vec4(t),
+                    },
+                    None => Edit::RemoveAttribute {
+                        primitive: p,
+                        name: "TANGENT".into(),
+                    },
                 });
             }
         }
@@ -231,6 +228,32 @@ pub fn geometry_edits(source: &Asset, place: &Placement<'_>) -> Result<Vec<Edit>
         });
     }
     Ok(edits)
+}
+
+/// Unit mesh-local normals of a primitive's vertices from the fitted welded normals (the old
+/// normal, or +z without one, where the vertex has no welded vertex or a degenerate normal).
+fn local_normals(
+    prim: &Primitive,
+    map: &[u32],
+    normals: &[[f64; 3]],
+    to_world: &Affine,
+) -> Vec<[f32; 3]> {
+    (0..prim.positions.len())
+        .map(|v| {
+            let old = prim.normals.as_ref().map_or([0.0, 0.0, 1.0], |o| o[v]);
+            match map[v] {
+                u32::MAX => old,
+                w => {
+                    let n = normalize(to_world.normal_to_local(normals[w as usize]));
+                    if n.iter().all(|c| c.is_finite()) && n != [0.0; 3] {
+                        n.map(|c| c as f32)
+                    } else {
+                        old
+                    }
+                }
+            }
+        })
+        .collect()
 }
 
 fn has_tangents(asset: &Asset, p: usize) -> bool {

@@ -1,0 +1,122 @@
+//! TANGENT of the fitted source, recomputed with MikkTSpace (issue 10, "Interface": "TANGENT
+//! recomputed or dropped").
+//!
+//! Not a step of the paper (Zell & Botsch 2013 keep the template's UVs and say nothing about
+//! tangent frames); it is what glTF 2.0 §3.7.2.1 asks of a client that lacks tangents: MikkTSpace
+//! on the written positions, normals and the texture coordinates of the normal texture. The
+//! algorithm is the `bevy_mikktspace` crate (a safe Rust port of Mikkelsen's reference code,
+//! byte-identical to it), so a viewer that regenerates tangents itself gets the same frames.
+//!
+//! Inputs are the primitive's own (mesh-local) vertices: the fitted POSITION, the recomputed
+//! NORMAL (unit), and the UV set `normalTexture.texCoord` of its material (0 without one). A
+//! vertex MikkTSpace leaves without a frame (only on degenerate faces with no neighbour) gets
+//! any unit vector orthogonal to its normal with w = +1, so the attribute stays valid. A
+//! primitive without that UV set has no tangent space: its TANGENT is removed instead.
+
+use bevy_mikktspace::{generate_tangents, Geometry, TangentSpace};
+
+use crate::engine::asset::Asset;
+
+/// One primitive's vertices as MikkTSpace sees them, and the frames it writes back.
+struct Frames<'a> {
+    triangles: &'a [[u32; 3]],
+    positions: &'a [[f32; 3]],
+    normals: &'a [[f32; 3]],
+    uvs: &'a [[f32; 2]],
+    out: Vec<Option<[f32; 4]>>,
+}
+
+impl Geometry for Frames<'_> {
+    fn num_faces(&self) -> usize {
+        self.triangles.len()
+    }
+
+    fn num_vertices_of_face(&self, _face: usize) -> usize {
+        3
+    }
+
+    fn position(&self, face: usize, vert: usize) -> [f32; 3] {
+        self.positions[self.triangles[face][vert] as usize]
+    }
+
+    fn normal(&self, face: usize, vert: usize) -> [f32; 3] {
+        self.normals[self.triangles[face][vert] as usize]
+    }
+
+    fn tex_coord(&self, face: usize, vert: usize) -> [f32; 2] {
+        self.uvs[self.triangles[face][vert] as usize]
+    }
+
+    fn set_tangent(&mut self, tangent_space: Option<TangentSpace>, face: usize, vert: usize) {
+        let v = self.triangles[face][vert] as usize;
+        if let Some(t) = tangent_space {
+            self.out[v] = Some(t.tangent_encoded());
+        }
+    }
+}
+
+/// The UV set a primitive's tangent space follows: its material's normal texture's, else 0.
+fn normal_uv_set(asset: &Asset, p: usize) -> usize {
+    asset.primitives[p]
+        .material
+        .and_then(|m| asset.json["materials"][m]["normalTexture"]["texCoord"].as_u64())
+        .unwrap_or(0) as usize
+}
+
+fn is_unit(v: &[f32]) -> bool {
+    let l2: f32 = v.iter().map(|c| c * c).sum();
+    l2.is_finite() && (l2 - 1.0).abs() < 1e-3
+}
+
+/// A unit vector orthogonal to the unit `n` (+x if `n` is not a usable direction).
+fn any_orthogonal(n: [f32; 3]) -> [f32; 3] {
+    let a = if n[0].abs() < 0.9 {
+        [1.0, 0.0, 0.0]
+    } else {
+        [0.0, 1.0, 0.0]
+    };
+    let d = a[0] * n[0] + a[1] * n[1] + a[2] * n[2];
+    let t = [a[0] - d * n[0], a[1] - d * n[1], a[2] - d * n[2]];
+    let l = (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt();
+    if l.is_finite() && l > 1e-6 {
+        t.map(|c| c / l)
+    } else {
+        // A zero or non-finite normal (kept from the input on a vertex without a face).
+        [1.0, 0.0, 0.0]
+    }
+}
+
+/// MikkTSpace tangents (xyz unit, w = ±1) of primitive `p` with the given mesh-local positions
+/// and unit normals, or `None` if the primitive lacks the UV set its tangents follow.
+pub fn mikktspace_tangents(
+    asset: &Asset,
+    p: usize,
+    positions: &[[f32; 3]],
+    normals: &[[f32; 3]],
+) -> Option<Vec<[f32; 4]>> {
+    let prim = &asset.primitives[p];
+    let uvs = prim.tex_coords.get(normal_uv_set(asset, p))?;
+    let mut frames = Frames {
+        triangles: &prim.triangles,
+        positions,
+        normals,
+        uvs,
+        out: vec![None; positions.len()],
+    };
+    // The crate's error type has no variants: generation cannot fail.
+    let _ = generate_tangents(&mut frames);
+    Some(
+        frames
+            .out
+            .iter()
+            .zip(normals)
+            .map(|(t, n)| match t {
+                Some(t) if is_unit(&t[..3]) => *t,
+                _ => {
+                    let o = any_orthogonal(*n);
+                    [o[0], o[1], o[2], 1.0]
+                }
+            })
+            .collect(),
+    )
+}
