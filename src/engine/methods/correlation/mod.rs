@@ -1,0 +1,6 @@
+//! The `correlation` method (Mertens, Kautz, Chen, Bekaert, Durand, *Texture Transfer Using
+//! Geometry Correlation*, EGSR 2006).
+
+pub mod cca;
+pub mod features;
+pub mod params;
