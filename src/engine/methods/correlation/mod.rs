@@ -4,3 +4,5 @@
 pub mod cca;
 pub mod features;
 pub mod params;
+pub mod pyramid;
+pub mod quantiles;
