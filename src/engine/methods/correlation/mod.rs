@@ -3,6 +3,8 @@
 
 pub mod cca;
 pub mod features;
+pub mod histmatch;
+pub mod mask;
 pub mod params;
 pub mod pyramid;
 pub mod quantiles;

@@ -138,8 +138,6 @@ pub struct CorrelationParams {
     /// regression's initialisation. Default: the regression's residual spread per cluster.
     #[schemars(range(min = 0, max = 1))]
     pub noise: Option<f32>,
-    /// Seed of the noise, the k-means initialisation and the random rotations. Default 0.
-    pub seed: u64,
     /// Up axis in object space for the height feature (glTF is y-up). Default `[0, 1, 0]`.
     pub up: [f32; 3],
     /// The four solid-angle curvature radii as fractions of the bounding-box diagonal (§3.2; the
@@ -156,8 +154,6 @@ pub struct CorrelationParams {
     pub mask: Option<SourceMask>,
     /// Options of the non-parametric synthesis (not implemented yet).
     pub nonparametric: NonparametricParams,
-    /// Write the guidance fields and the segmentation as colours into debug files. Default false.
-    pub debug_fields: bool,
     /// Shared: [`SharedParams::vertex_color_samples`].
     pub vertex_color_samples: usize,
     /// Shared: [`SharedParams::weld_tolerance`].
@@ -177,13 +173,11 @@ impl Default for CorrelationParams {
             pyramid_levels: 3,
             iterations: 3,
             noise: None,
-            seed: 0,
             up: [0.0, 1.0, 0.0],
             curvature_radii: [0.0125, 0.025, 0.05, 0.1],
             feature_rays: 128,
             mask: None,
             nonparametric: NonparametricParams::default(),
-            debug_fields: false,
             vertex_color_samples: shared.vertex_color_samples,
             weld_tolerance: shared.weld_tolerance,
         }
