@@ -2,5 +2,9 @@
 //! placeholder only declares the pieces built so far; the method itself is in helper corr's
 //! branch.
 
+pub mod cluster_stats;
+pub mod feather;
+pub mod kmeans;
+pub mod parametric;
 pub mod pyramid;
 pub mod quantiles;
