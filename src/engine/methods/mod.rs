@@ -60,6 +60,7 @@ impl Registry {
                 &project::Project,
                 &meshmatch::MeshMatch,
                 &elastiface::Elastiface,
+                &correlation::Correlation,
             ],
         }
     }

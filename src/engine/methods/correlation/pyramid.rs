@@ -271,9 +271,25 @@ impl SurfacePyramid {
     /// # Panics
     /// If `level0` does not have one value per level-0 sample.
     pub fn gaussian<const D: usize>(&self, level0: &[[f32; D]]) -> Vec<Vec<[f32; D]>> {
+        self.gaussian_levels(level0, self.levels)
+    }
+
+    /// The first `n` levels (1 ..= [`SurfacePyramid::level_count`]) of the Gaussian pyramid.
+    ///
+    /// # Panics
+    /// If `level0` does not have one value per level-0 sample or `n` is out of range.
+    pub fn gaussian_levels<const D: usize>(
+        &self,
+        level0: &[[f32; D]],
+        n: usize,
+    ) -> Vec<Vec<[f32; D]>> {
         assert_eq!(level0.len(), self.len(0), "one value per level-0 sample");
+        assert!(
+            (1..=self.levels).contains(&n),
+            "level count {n} out of range"
+        );
         let mut out = vec![level0.to_vec()];
-        for l in 0..self.levels - 1 {
+        for l in 0..n - 1 {
             let s = self.smooth(l, &out[l]);
             out.push(self.down(l, &s));
         }
@@ -286,8 +302,20 @@ impl SurfacePyramid {
     /// # Panics
     /// If `level0` does not have one value per level-0 sample.
     pub fn laplacian<const D: usize>(&self, level0: &[[f32; D]]) -> Vec<Vec<[f32; D]>> {
-        let mut g = self.gaussian(level0);
-        for l in 0..self.levels - 1 {
+        self.laplacian_levels(level0, self.levels)
+    }
+
+    /// The Laplacian pyramid over the first `n` levels (the last band is Gaussian level `n − 1`).
+    ///
+    /// # Panics
+    /// If `level0` does not have one value per level-0 sample or `n` is out of range.
+    pub fn laplacian_levels<const D: usize>(
+        &self,
+        level0: &[[f32; D]],
+        n: usize,
+    ) -> Vec<Vec<[f32; D]>> {
+        let mut g = self.gaussian_levels(level0, n);
+        for l in 0..n - 1 {
             let up = self.hierarchy.prolongate(l + 1, &g[l + 1]);
             for (x, u) in g[l].iter_mut().zip(&up) {
                 for k in 0..D {
@@ -299,14 +327,17 @@ impl SurfacePyramid {
     }
 
     /// The level-0 field whose Laplacian pyramid is `bands` (the exact inverse of
-    /// [`SurfacePyramid::laplacian`] up to float rounding).
+    /// [`SurfacePyramid::laplacian`] and of [`SurfacePyramid::laplacian_levels`] for
+    /// `bands.len()` levels, up to float rounding).
     ///
     /// # Panics
-    /// If `bands` does not have one band per level with one value per sample.
+    /// If there are no bands or more than levels, or a band has not one value per sample.
     pub fn collapse<const D: usize>(&self, bands: &[Vec<[f32; D]>]) -> Vec<[f32; D]> {
-        assert_eq!(bands.len(), self.levels, "one band per level");
-        let mut cur = bands[self.levels - 1].clone();
-        for l in (0..self.levels - 1).rev() {
+        let n = bands.len();
+        assert!((1..=self.levels).contains(&n), "one band per level");
+        assert_eq!(bands[n - 1].len(), self.len(n - 1), "one value per sample");
+        let mut cur = bands[n - 1].clone();
+        for l in (0..n - 1).rev() {
             assert_eq!(bands[l].len(), self.len(l), "one value per sample");
             let up = self.hierarchy.prolongate(l + 1, &cur);
             cur = bands[l]
