@@ -129,7 +129,10 @@ fn features_on_a_sphere_match_their_closed_forms() {
 /// Synthetic features: 12 correlated Gaussian columns, the last three of small variance; the
 /// colour is `A x + noise` with `A` reading only the small-variance columns 9..12 (so PCA, which
 /// keeps the directions of large feature variance, misses it).
-fn synthetic(n: usize, seed: u64, noise: f32) -> (Vec<[f32; 12]>, Vec<[f32; 3]>, Vec<[f32; 3]>) {
+/// Features, noisy colours, clean colours.
+type Synthetic = (Vec<[f32; 12]>, Vec<[f32; 3]>, Vec<[f32; 3]>);
+
+fn synthetic(n: usize, seed: u64, noise: f32) -> Synthetic {
     let mut rng = SplitMix64::new(seed);
     let mut g = || {
         let u = rng.unit_f64().max(1e-300);

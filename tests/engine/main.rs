@@ -16,6 +16,7 @@ mod meshmatch_common;
 
 mod color_output;
 mod constraints_schema;
+mod correlation;
 mod correlation_parts;
 mod correlation_synthesis;
 mod elastiface;

@@ -6,7 +6,9 @@
 //! Pipeline, one module per step:
 //! 1. [`pyramid`] (§3.1): dense even samples of both surfaces and their Gaussian / Laplacian
 //!    pyramids; the source's linear colour per sample (a point sample of the base colour at the
-//!    sample's place on the input surface); [`mask`]: training weights.
+//!    sample's place on the input surface); [`mask`]: training weights (masked samples get
+//!    weight 0 in every statistic, and the training mean colour so that their colour does not
+//!    bleed through the colour pyramid into the samples around them).
 //! 2. [`features`] (§3.2): 12-D features per input vertex, interpolated to the samples.
 //! 3. [`cca`] (§3.3): CCA (or PCA) guidance, fitted on the source, applied to both.
 //! 4. [`histmatch`] (§4): the target's guidance matched to the source's (marginals or
@@ -133,6 +135,30 @@ pub fn sample_colors(asset: &Asset, input: &Surface, at: &[FacePoint]) -> Vec<[f
         .collect()
 }
 
+/// Masked samples take the mean colour of the training samples: they carry no weight in any
+/// statistic, but the source's colour pyramid smooths across the mask's edge, and a masked
+/// colour kept there would bleed into the coarse levels of the samples around it.
+fn fill_masked(mut colors: Vec<[f32; 3]>, weights: &[f32], area: &[f32]) -> Vec<[f32; 3]> {
+    let mut sum = [0.0f64; 3];
+    let mut total = 0.0f64;
+    for ((c, w), a) in colors.iter().zip(weights).zip(area) {
+        let w = f64::from(w * a);
+        total += w;
+        for k in 0..3 {
+            sum[k] += w * f64::from(c[k]);
+        }
+    }
+    if total > 0.0 {
+        let mean = sum.map(|s| (s / total) as f32);
+        for (c, w) in colors.iter_mut().zip(weights) {
+            if *w == 0.0 {
+                *c = mean;
+            }
+        }
+    }
+    colors
+}
+
 fn surface_of(
     asset: &Asset,
     weld: &WeldParams,
@@ -177,6 +203,7 @@ pub fn run(
         None => vec![1.0; colors.len()],
     };
     let masked_samples = weights.iter().filter(|w| **w == 0.0).count();
+    let colors = fill_masked(colors, &weights, src_pyr.area(0));
     drop(span);
 
     let span = control.span(0.15, 0.5);
