@@ -18,6 +18,7 @@ mod color_output;
 mod constraints_schema;
 mod correlation;
 mod correlation_parts;
+mod correlation_real;
 mod correlation_synthesis;
 mod elastiface;
 mod elastiface_real;
