@@ -150,9 +150,10 @@ fn main() -> ExitCode {
         } => match method.as_str() {
             "project" => cli::bench::run(&assets, runs),
             "meshmatch" => cli::bench_meshmatch::run(&assets, runs),
+            "correlation" => cli::bench_correlation::run(&assets, runs),
             "geometry" => cli::bench_geometry::run(runs),
             other => Err(format!(
-                "no benchmark for method {other:?}: expected project, meshmatch or geometry"
+                "no benchmark for method {other:?}: expected project, meshmatch, correlation or geometry"
             )),
         },
         #[cfg(feature = "service")]
