@@ -717,3 +717,59 @@ fn bench_parametric_synthesis() {
         }
     }
 }
+
+#[test]
+fn parametric_mask_removes_a_painted_region_from_training() {
+    let control = Control::new();
+    let sp = SurfacePyramid::build(&bumpy_sphere(0.15, 4.0), 12_000, 3, &control).unwrap();
+    let tp = SurfacePyramid::build(&bumpy_torus(64, 24, 0.3), 10_000, 3, &control).unwrap();
+    let (sg, tg) = (height_guidance(&sp), height_guidance(&tp));
+    for seed in 1..4u64 {
+        let mut sc = regime_colours_on(&sp, &sg, seed);
+        // Paint a green patch over part of the blue regime and mask it out.
+        let mut weight = vec![1.0f32; sp.len(0)];
+        for (i, p) in sp.mesh(0).positions.iter().enumerate() {
+            if p[0] > 0.3 {
+                sc[i] = [0.1, 0.9, 0.1];
+                weight[i] = 0.0;
+            }
+        }
+        let input = SynthesisInput {
+            source: &sp,
+            target: &tp,
+            source_guidance: &sg,
+            target_guidance: &tg,
+            guidance_dims: 1,
+            source_color: &sc,
+            source_weight: &weight,
+        };
+        let params = ParametricParams {
+            seed,
+            ..Default::default()
+        };
+        let (out, _, _) = synthesize(&input, &params, &control).unwrap();
+        let greenish = out
+            .iter()
+            .filter(|c| c[1] > 0.6 && c[1] > c[0] + 0.3 && c[1] > c[2])
+            .count();
+        let blue = region(&tg, true);
+        let mean_g = blue.iter().map(|&i| out[i][1]).sum::<f32>() / blue.len() as f32;
+        assert_eq!(greenish, 0, "seed {seed}");
+        assert!(
+            (mean_g - BLUE[1]).abs() < 0.03,
+            "seed {seed}: mean G {mean_g}"
+        );
+        // Without the mask the paint leaks in (the check above is not vacuous).
+        let ones = vec![1.0f32; sp.len(0)];
+        let input = SynthesisInput {
+            source_weight: &ones,
+            ..input
+        };
+        let (leak, _, _) = synthesize(&input, &params, &control).unwrap();
+        let leak_g = blue.iter().map(|&i| leak[i][1]).sum::<f32>() / blue.len() as f32;
+        assert!(
+            leak_g - BLUE[1] > 0.06,
+            "seed {seed}: unmasked mean G {leak_g}"
+        );
+    }
+}
