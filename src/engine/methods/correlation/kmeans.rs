@@ -158,7 +158,8 @@ pub fn kmeans(
                 *c = s.map(|x| (x / w) as f32);
             }
         }
-        let converged = changed == 0 || inertia - new_inertia <= TOLERANCE * inertia;
+        let converged =
+            changed == 0 || (inertia.is_finite() && inertia - new_inertia <= TOLERANCE * inertia);
         inertia = new_inertia;
         if converged {
             break;

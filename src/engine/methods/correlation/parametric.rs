@@ -22,6 +22,12 @@
 //!    results mixed by the memberships; collapse; the colour matched the same way.
 //! 7. Back to linear RGB, clamped to the range of the source's colours.
 //!
+//! Convergence (measured, test `correlation_synthesis`): the white-noise start puts all the
+//! texture's energy in the finest band, and H&B builds the coarser bands up over the iterations:
+//! with a two-scale test texture the target's level-1 band energy is 0.41-0.45 of the source's
+//! after 0 iterations, 0.61-0.68 after 1, 0.79-0.87 after 3 (the paper's setting, the default)
+//! and 0.88-0.95 after 6; levels 0 and 2 are within 1-8 % from 3 iterations on.
+//!
 //! `nearest_clusters` is retex's default of 4 (the paper says "k-nearest" without a k): enough
 //! to blend between neighbouring segments, few enough that a target segment keeps a distinct
 //! texture. Deterministic for a seed; the work is parallel per cluster and per sample.

@@ -10,11 +10,12 @@
 //! (`location`). Uniformity: longest-edge bisection keeps edges within about a factor of 2 of each
 //! other, and on an evenly tessellated input the mean incident edge length per sample has a 95th /
 //! 5th percentile ratio of 1.53-1.77 (measured on a sphere, a bumpy sphere and a bumpy torus at
-//! 4K, 16K and 64K samples; test `correlation_synthesis::pyramid_samples_are_even_and_levels_quarter`
-//! asserts < 2). Point repulsion would be more even (about 1.2); the pyramid and statistics weight
-//! every sample by its area, so the spread biases no histogram. An input that already has more vertices
-//! than asked is kept as it is (its own tessellation decides the spread); vertices used by no
-//! triangle are dropped.
+//! 4K, 16K and 64K samples; test
+//! `correlation_synthesis::pyramid::pyramid_samples_are_even_and_levels_quarter` asserts < 2).
+//! Point repulsion would be more even; the pyramid and the statistics weight every sample by its
+//! area, so the spread biases no histogram. An input that already has more vertices than asked is
+//! kept as it is (its own tessellation decides the spread); vertices used by no triangle are
+//! dropped.
 //!
 //! **Coarser levels.** [`multires::build_hierarchy`] (shortest-edge-first midpoint collapse) with
 //! a ratio of ¼ per level (an image pyramid halves each axis), so level `l` has about `n/4^l`
