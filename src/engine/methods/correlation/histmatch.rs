@@ -138,15 +138,16 @@ pub fn match_guidance(
         .zip(source_weight)
         .map(|(a, w)| a * w)
         .collect();
-    if multiscale && source.level_count() > 1 && target.level_count() > 1 {
-        let levels = source.level_count().min(target.level_count());
+    // Bands are matched level by level only when both pyramids have the same depth (a model
+    // too small for the requested levels gets fewer, and its coarsest band, a Gaussian, would
+    // face a Laplacian band of the other): otherwise only the values are matched.
+    if multiscale && source.level_count() > 1 && source.level_count() == target.level_count() {
+        let levels = source.level_count();
         let mut tb = target.laplacian(target_guidance);
         let sb = source.laplacian(source_guidance);
         let mask: Vec<[f32; 1]> = source_weight.iter().map(|w| [*w]).collect();
         let mask_levels = source.gaussian(&mask);
         for level in 0..levels {
-            // A pyramid with more levels than the other: its extra coarse bands stay as they are,
-            // and the last common level matches Laplacian bands, not the coarse residual.
             let sw: Vec<f32> = source
                 .area(level)
                 .iter()
