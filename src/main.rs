@@ -151,9 +151,10 @@ fn main() -> ExitCode {
             "project" => cli::bench::run(&assets, runs),
             "meshmatch" => cli::bench_meshmatch::run(&assets, runs),
             "elastiface" => cli::bench_elastiface::run(&assets, runs),
+            "correlation" => cli::bench_correlation::run(&assets, runs),
             "geometry" => cli::bench_geometry::run(runs),
             other => Err(format!(
-                "no benchmark for method {other:?}: expected project, meshmatch, elastiface or geometry"
+                "no benchmark for method {other:?}: expected project, meshmatch, elastiface, correlation or geometry"
             )),
         },
         #[cfg(feature = "service")]

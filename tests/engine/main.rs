@@ -16,6 +16,10 @@ mod meshmatch_common;
 
 mod color_output;
 mod constraints_schema;
+mod correlation;
+mod correlation_parts;
+mod correlation_real;
+mod correlation_synthesis;
 mod elastiface;
 mod elastiface_inputs;
 mod elastiface_landmarks;

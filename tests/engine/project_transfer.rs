@@ -421,7 +421,7 @@ fn bad_requests_fail_with_clear_errors() {
     let e = run(
         &spot,
         &spot,
-        constraints(json!({"version": 1, "method": "correlation"})),
+        constraints(json!({"version": 1, "method": "detail"})),
     )
     .unwrap_err();
     assert!(e.to_string().contains("not implemented"), "{e}");

@@ -236,12 +236,7 @@ async fn bad_constraints_fail_with_a_problem_naming_the_field() {
         r#"{"version":1,"output":{"texture_size":"large"}}"#,
     );
     let unknown = submit(&env, &runner, SPOT, r#"{"version":1,"outptu":{}}"#);
-    let not_impl = submit(
-        &env,
-        &runner,
-        SPOT,
-        r#"{"version":1,"method":"correlation"}"#,
-    );
+    let not_impl = submit(&env, &runner, SPOT, r#"{"version":1,"method":"detail"}"#);
 
     let j = wait_terminal(&env, bad_type).await;
     assert_eq!(j.status, JobStatus::Failed);

@@ -16,6 +16,7 @@
 
 pub mod align;
 pub mod color_output;
+pub mod correlation;
 pub mod correspondence;
 pub mod elastiface;
 pub mod meshmatch;
@@ -59,6 +60,7 @@ impl Registry {
                 &project::Project,
                 &meshmatch::MeshMatch,
                 &elastiface::Elastiface,
+                &correlation::Correlation,
             ],
         }
     }

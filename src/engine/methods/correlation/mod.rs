@@ -1,0 +1,317 @@
+//! The `correlation` method (Mertens, Kautz, Chen, Bekaert, Durand, *Texture Transfer Using
+//! Geometry Correlation*, EGSR 2006): the source's colour is explained by local geometry
+//! (curvature, occlusion, orientation, height), and the target gets colour synthesized from the
+//! same relation on its own geometry: no correspondences, no shared shape.
+//!
+//! Pipeline, one module per step:
+//! 1. [`pyramid`] (§3.1): dense even samples of both surfaces and their Gaussian / Laplacian
+//!    pyramids; the source's linear colour per sample (a point sample of the base colour at the
+//!    sample's place on the input surface); [`mask`]: training weights (masked samples get
+//!    weight 0 in every statistic, and the training mean colour so that their colour does not
+//!    bleed through the colour pyramid into the samples around them).
+//! 2. [`features`] (§3.2): 12-D features per input vertex, interpolated to the samples.
+//! 3. [`cca`] (§3.3): CCA (or PCA) guidance, fitted on the source, applied to both.
+//! 4. [`histmatch`] (§4): the target's guidance matched to the source's (marginals or
+//!    multiscale).
+//! 5. [`parametric`] (§5.2): clustered histogram synthesis of the target's colour.
+//! 6. Output: the target's sample colours, interpolated over its level-0 mesh, baked through
+//!    [`crate::engine::methods::color_output::write_color_field`].
+//!
+//! Not implemented: the non-parametric synthesis (§5.1; refused at the params check), the
+//! debug files (guidance fields and segmentation as colours).
+
+pub mod cca;
+pub mod cluster_stats;
+pub mod feather;
+pub mod features;
+pub mod histmatch;
+pub mod kmeans;
+pub mod mask;
+pub mod parametric;
+pub mod params;
+pub mod pyramid;
+pub mod quantiles;
+pub mod report;
+
+use crate::engine::asset::constraints::{Constraints, ConstraintsError, MethodId};
+use crate::engine::asset::edits::Edit;
+use crate::engine::asset::Asset;
+use crate::engine::control::Control;
+use crate::engine::mesh::{build_surface, Surface, WeldParams};
+use crate::engine::methods::color_output::{write_color_field, ColorField};
+use crate::engine::methods::{InputSpec, Method, MethodError, MethodInput, MethodOutput};
+use crate::engine::multires::FacePoint;
+use crate::engine::spatial::Bvh;
+use crate::engine::texture::sample::MaterialSampler;
+
+use features::{sample_features, vertex_features, FeatureParams};
+use parametric::{synthesize, ParametricParams, SynthesisInput};
+use params::{CorrelationParams, FeatureMatching, Reduction, SourceMask};
+use pyramid::SurfacePyramid;
+use report::{CorrelationReport, SideReport};
+
+/// The `correlation` method (registry entry).
+pub struct Correlation;
+
+impl Method for Correlation {
+    fn id(&self) -> MethodId {
+        MethodId::Correlation
+    }
+
+    fn inputs(&self) -> InputSpec {
+        InputSpec::SOURCE_AND_TARGET
+    }
+
+    fn params_schema(&self) -> serde_json::Value {
+        crate::engine::methods::params::schema_of::<CorrelationParams>()
+    }
+
+    fn check(&self, constraints: &Constraints) -> Result<(), ConstraintsError> {
+        CorrelationParams::from_constraints(constraints).map(drop)
+    }
+
+    fn extra_images(&self, constraints: &Constraints) -> Vec<(&'static str, usize)> {
+        match CorrelationParams::from_constraints(constraints).map(|p| p.mask) {
+            Ok(Some(SourceMask::Image { index, .. })) => vec![("source", index)],
+            _ => Vec::new(),
+        }
+    }
+
+    fn run(&self, input: &MethodInput<'_>, control: &Control) -> Result<MethodOutput, MethodError> {
+        let params = CorrelationParams::from_constraints(input.constraints)?;
+        let (edits, report) = run(
+            input.source()?,
+            input.target,
+            input.constraints,
+            &params,
+            control,
+        )?;
+        let mut out = MethodOutput::target(edits, &report);
+        out.warnings = report.warnings;
+        Ok(out)
+    }
+}
+
+/// The target's sample colours as a field over its surface: the closest point on the level-0
+/// mesh, colours interpolated barycentrically.
+struct SampleField<'a> {
+    mesh: &'a Surface,
+    bvh: Bvh,
+    colors: &'a [[f32; 3]],
+}
+
+impl ColorField for SampleField<'_> {
+    fn color_at(
+        &self,
+        p: [f32; 3],
+        _normal: [f32; 3],
+        hint: Option<u32>,
+    ) -> Option<([f32; 4], u32)> {
+        let bound = hint.map_or(f32::INFINITY, |h| self.mesh.hint_bound(h as usize, p));
+        let hit = self.bvh.closest_point(p, bound)?;
+        let f = self.mesh.faces[hit.face as usize];
+        let mut c = [0.0f32, 0.0, 0.0, 1.0];
+        for k in 0..3 {
+            for ch in 0..3 {
+                c[ch] += hit.bary[k] * self.colors[f[k] as usize][ch];
+            }
+        }
+        Some((c.map(|x| x.clamp(0.0, 1.0)), hit.face))
+    }
+}
+
+/// The source's linear base colour at each sample location (a point sample).
+pub fn sample_colors(asset: &Asset, input: &Surface, at: &[FacePoint]) -> Vec<[f32; 3]> {
+    use rayon::prelude::*;
+    let sampler = MaterialSampler::new(asset);
+    at.par_iter()
+        .map(|fp| match mask::triangle_point(asset, input, *fp) {
+            Some((prim, tri, b)) => {
+                let c = sampler.base_color(prim, tri, b);
+                [c[0], c[1], c[2]]
+            }
+            None => [1.0; 3],
+        })
+        .collect()
+}
+
+/// Masked samples take the mean colour of the training samples: they carry no weight in any
+/// statistic, but the source's colour pyramid smooths across the mask's edge, and a masked
+/// colour kept there would bleed into the coarse levels of the samples around it.
+fn fill_masked(mut colors: Vec<[f32; 3]>, weights: &[f32], area: &[f32]) -> Vec<[f32; 3]> {
+    let mut sum = [0.0f64; 3];
+    let mut total = 0.0f64;
+    for ((c, w), a) in colors.iter().zip(weights).zip(area) {
+        let w = f64::from(w * a);
+        total += w;
+        for k in 0..3 {
+            sum[k] += w * f64::from(c[k]);
+        }
+    }
+    if total > 0.0 {
+        let mean = sum.map(|s| (s / total) as f32);
+        for (c, w) in colors.iter_mut().zip(weights) {
+            if *w == 0.0 {
+                *c = mean;
+            }
+        }
+    }
+    colors
+}
+
+fn surface_of(
+    asset: &Asset,
+    weld: &WeldParams,
+    side: &'static str,
+) -> Result<Surface, MethodError> {
+    build_surface(asset, weld).map_err(|source| MethodError::Mesh { side, source })
+}
+
+fn side_report(surface: &Surface, p: &SurfacePyramid) -> SideReport {
+    SideReport {
+        vertices: surface.vertex_count(),
+        samples: p.len(0),
+        level_samples: (0..p.level_count()).map(|l| p.len(l)).collect(),
+    }
+}
+
+/// Runs `correlation`: the edits of the target and the report.
+///
+/// # Errors
+/// [`MethodError`]: a bad surface, a mask that removes everything, cancellation.
+pub fn run(
+    source: &Asset,
+    target: &Asset,
+    constraints: &Constraints,
+    params: &CorrelationParams,
+    control: &Control,
+) -> Result<(Vec<Edit>, CorrelationReport), MethodError> {
+    let weld = WeldParams {
+        relative_tolerance: params.weld_tolerance,
+    };
+    let seed = constraints.seed;
+    let span = control.span(0.0, 0.15);
+    control.stage("surface", 0)?;
+    let src = surface_of(source, &weld, "source")?;
+    let tgt = surface_of(target, &weld, "target")?;
+    let src_pyr = SurfacePyramid::build(&src, params.samples, params.pyramid_levels, control)?;
+    let tgt_pyr = SurfacePyramid::build(&tgt, params.samples, params.pyramid_levels, control)?;
+    control.stage("source_colour", 0)?;
+    let colors = sample_colors(source, &src, src_pyr.location());
+    let weights = match &params.mask {
+        Some(m) => mask::training_weights(m, source, &src, src_pyr.location())?,
+        None => vec![1.0; colors.len()],
+    };
+    let masked_samples = weights.iter().filter(|w| **w == 0.0).count();
+    let colors = fill_masked(colors, &weights, src_pyr.area(0));
+    drop(span);
+
+    let span = control.span(0.15, 0.5);
+    let fp = FeatureParams {
+        up: params.up_unit(),
+        radii: params.curvature_radii,
+        rays: params.feature_rays,
+        seed,
+    };
+    let src_vf = vertex_features(&src, &fp, control)?;
+    let tgt_vf = vertex_features(&tgt, &fp, control)?;
+    let src_f = sample_features(&src, &src_vf, src_pyr.location());
+    let tgt_f = sample_features(&tgt, &tgt_vf, tgt_pyr.location());
+    drop((src_vf, tgt_vf));
+    drop(span);
+
+    let span = control.span(0.5, 0.55);
+    control.stage("cca", 0)?;
+    let train: Vec<f32> = src_pyr
+        .area(0)
+        .iter()
+        .zip(&weights)
+        .map(|(a, w)| a * w)
+        .collect();
+    let model = match params.reduction {
+        Reduction::Cca => cca::fit_cca(&src_f, &colors, &train)?,
+        Reduction::Pca => cca::fit_pca(&src_f, &colors, &train)?,
+    };
+    let src_g = model.apply(&src_f);
+    let mut tgt_g = model.apply(&tgt_f);
+    drop((src_f, tgt_f));
+    drop(span);
+
+    let span = control.span(0.55, 0.65);
+    control.stage("feature_matching", 0)?;
+    let matching = match params.feature_matching {
+        FeatureMatching::Off => Default::default(),
+        m => histmatch::match_guidance(
+            &mut tgt_g,
+            &tgt_pyr,
+            &src_g,
+            &src_pyr,
+            &weights,
+            model.dims,
+            m == FeatureMatching::Multiscale,
+            seed,
+            control,
+        )?,
+    };
+    drop(span);
+
+    let span = control.span(0.65, 0.9);
+    let (out_colors, _clusters, synthesis) = synthesize(
+        &SynthesisInput {
+            source: &src_pyr,
+            target: &tgt_pyr,
+            source_guidance: &src_g,
+            target_guidance: &tgt_g,
+            guidance_dims: model.dims,
+            source_color: &colors,
+            source_weight: &weights,
+        },
+        &ParametricParams {
+            clusters: params.clusters,
+            nearest_clusters: params.nearest_clusters,
+            levels: params.pyramid_levels,
+            iterations: params.iterations,
+            noise: params.noise,
+            seed,
+        },
+        control,
+    )?;
+    drop(span);
+
+    let _span = control.span(0.9, 1.0);
+    let mesh = tgt_pyr.mesh(0);
+    let field = SampleField {
+        mesh,
+        bvh: Bvh::build(&mesh.positions, &mesh.faces),
+        colors: &out_colors,
+    };
+    let (edits, output) = write_color_field(
+        target,
+        constraints,
+        params.vertex_color_samples,
+        &field,
+        control,
+    )?;
+    let mut warnings = Vec::new();
+    if model.kind == cca::Kind::Cca && model.correlations.first().copied().unwrap_or(0.0) < 0.2 {
+        warnings.push(format!(
+            "the source's colour hardly correlates with its geometry (first canonical correlation {:.2}): the transfer carries its colour statistics, not a placement",
+            model.correlations.first().copied().unwrap_or(0.0)
+        ));
+    }
+    warnings.extend(output.warnings.iter().cloned());
+    let report = CorrelationReport {
+        source: side_report(&src, &src_pyr),
+        target: side_report(&tgt, &tgt_pyr),
+        masked_samples,
+        reduction: params.reduction,
+        clusters: params.clusters,
+        guidance: model,
+        feature_matching: params.feature_matching,
+        matching,
+        synthesis,
+        output,
+        warnings: warnings.clone(),
+    };
+    Ok((edits, report))
+}
