@@ -92,7 +92,7 @@ enum Command {
         /// Runs per case (the median is reported).
         #[arg(long, default_value_t = 5)]
         runs: usize,
-        /// Which table: `project` (default), `meshmatch`, `elastiface`, or `geometry` (the geometry core on a
+        /// Which table: `project` (default), `meshmatch`, `elastiface`, `correlation`, or `geometry` (the geometry core on a
         /// 64K-vertex sphere; needs no assets).
         #[arg(long, default_value = "project")]
         method: String,
