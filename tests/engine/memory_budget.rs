@@ -583,3 +583,32 @@ fn elastiface_on_inputs_too_large_for_its_solves_is_refused_before_it_runs() {
         other => panic!("{other}"),
     }
 }
+
+#[test]
+fn an_over_large_correlation_sample_count_is_refused_at_check_time() {
+    let registry = Registry::builtin();
+    let constraints = Constraints::from_json(
+        br#"{"version": 1, "method": "correlation", "output": {"texture_size": 16},
+             "params": {"samples": 65536}}"#,
+    )
+    .unwrap();
+    // 2 models × 65,536 samples × 1 KiB = 128 MiB: over 64 MiB, within 256 MiB.
+    let tight = IngestLimits {
+        max_method_bytes: 64 << 20,
+        ..IngestLimits::default()
+    };
+    match checked_method(&registry, &constraints, &tight) {
+        Err(TransferError::WorkingSet { field, bytes, max }) => {
+            assert_eq!(field, "params.samples");
+            assert_eq!(max, 64 << 20);
+            assert!(bytes >= 128 << 20, "{bytes}");
+        }
+        Err(other) => panic!("{other}"),
+        Ok(_) => panic!("accepted"),
+    }
+    let roomy = IngestLimits {
+        max_method_bytes: 256 << 20,
+        ..IngestLimits::default()
+    };
+    assert!(checked_method(&registry, &constraints, &roomy).is_ok());
+}
