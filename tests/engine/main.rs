@@ -17,6 +17,7 @@ mod meshmatch_common;
 mod color_output;
 mod constraints_schema;
 mod elastiface;
+mod elastiface_blend;
 mod elastiface_inputs;
 mod elastiface_landmarks;
 mod elastiface_real;
