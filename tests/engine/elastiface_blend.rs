@@ -7,7 +7,8 @@
 //! The pair: a UV sphere template onto a turned, finer sphere stretched by `diag(s)` (as in
 //! `elastiface_inputs`). The template's own colour is `tcolor(u, v)`, either as a texture or as
 //! COLOR_0 without a texture; the target's is a smooth function of the unit-sphere point. Sweep:
-//! w ∈ {0, 0.3, 0.7} × two stretches × both template colour kinds (README "elastiface").
+//! w ∈ {0, 0.3, 0.7} × two stretches × both template colour kinds (README "elastiface"). Set
+//! `RETEX_ELASTIFACE_OUT` to a folder to keep the blended GLBs for `retex preview`.
 
 use retex::engine::asset::Asset;
 use retex::engine::asset::DecodedImage;
@@ -239,6 +240,10 @@ fn elastiface_blend_is_linear_in_positions_and_texels() {
                 )
                 .expect("blend");
                 assert_validator_clean(&out.model, "elastiface_blend.glb");
+                if let Ok(dir) = std::env::var("RETEX_ELASTIFACE_OUT") {
+                    let name = format!("blend_{}_{w}_{}.glb", u8::from(textured), stretch[0]);
+                    std::fs::write(std::path::Path::new(&dir).join(name), &out.model).unwrap();
+                }
                 assert_eq!(out.report.method_report["blend_weight"], json!(w));
                 check_blend(&source, &fitted, &output_asset(&out), w, &label);
             }
