@@ -6,7 +6,7 @@
 //!
 //! The pair: a UV sphere template onto a turned, finer sphere stretched by `diag(s)` (as in
 //! `elastiface_inputs`). The template's own colour is `tcolor(u, v)`, either as a texture or as
-//! COLOR_0 without a texture; the target's is a smooth function of the unit-sphere point. Sweep:
+//! COLOR_0 without a texture (and, without UVs, COLOR_0 blended per vertex); the target's is a smooth function of the unit-sphere point. Sweep:
 //! w ∈ {0, 0.3, 0.7} × two stretches × both template colour kinds (README "elastiface"). Set
 //! `RETEX_ELASTIFACE_OUT` to a folder to keep the blended GLBs for `retex preview`.
 
@@ -287,5 +287,56 @@ fn elastiface_blend_refuses_bad_weights_and_the_region() {
             .expect_err("refused")
             .to_string();
         assert!(err.contains(field) && err.contains(words), "{blend}: {err}");
+    }
+}
+
+#[test]
+fn elastiface_blend_of_a_uvless_template_mixes_its_own_color0() {
+    let source = MeshData {
+        uvs: None,
+        ..uv_sphere(48, 24, |p| p)
+    };
+    let own: Vec<[f64; 3]> = source
+        .positions
+        .iter()
+        .map(|p| tcolor(0.5 + 0.5 * p[0] as f64, 0.5 + 0.5 * p[1] as f64))
+        .collect();
+    let flat: Vec<f32> = own
+        .iter()
+        .flat_map(|c| [c[0] as f32, c[1] as f32, c[2] as f32, 1.0])
+        .collect();
+    let s = mesh_glb_with(&source, None, 1.0, &[("COLOR_0", 4, flat)]);
+    for stretch in STRETCHES {
+        let t = target_glb(stretch);
+        let full = output_asset(&run_glbs(&s, &t, constraints(stretch, json!({}))).expect("w = 1"));
+        let relaid = full.primitives[0].colors.clone().expect("COLOR_0");
+        for w in WEIGHTS {
+            let out = run_glbs(
+                &s,
+                &t,
+                constraints(stretch, json!({"blend": {"weight": w}})),
+            )
+            .expect("blend");
+            assert_validator_clean(&out.model, "elastiface_blend_uvless.glb");
+            let got = output_asset(&out).primitives[0]
+                .colors
+                .clone()
+                .expect("COLOR_0");
+            assert_eq!(got.len(), source.positions.len());
+            let (mut err, mut off) = (0.0f64, 0.0f64);
+            for v in 0..got.len() {
+                for d in 0..3 {
+                    let want = (1.0 - w) * own[v][d] + w * relaid[v][d] as f64;
+                    err = err.max((got[v][d] as f64 - want).abs());
+                    off += (got[v][d] as f64 - relaid[v][d] as f64).abs() / (3 * got.len()) as f64;
+                }
+            }
+            eprintln!(
+                "blend UV-less template, stretch {stretch:?} w {w}: max COLOR_0 error {err:.1e}, \
+                 unblended colours {off:.3} away (mean)"
+            );
+            assert!(err < 1e-3, "w {w}: COLOR_0 error {err}");
+            assert!(off > 0.03, "w {w}: not a blend ({off})");
+        }
     }
 }
