@@ -21,6 +21,7 @@ mod correlation_parts;
 mod correlation_real;
 mod correlation_synthesis;
 mod elastiface;
+mod elastiface_blend;
 mod elastiface_inputs;
 mod elastiface_landmarks;
 mod elastiface_real;

@@ -14,9 +14,11 @@
 //! 5. [`texture`]: texture matching (§4) through the shared texel loop;
 //! 6. [`writeback`]: POSITION / NORMAL through the source's node transforms, or a morph target;
 //!    [`tangents`]: TANGENT recomputed with MikkTSpace;
-//! 7. [`metrics`]: Hausdorff distance, flipped triangles and residuals for the report.
+//! 7. [`metrics`]: Hausdorff distance, flipped triangles and residuals for the report;
+//! 8. [`blend`]: the linear morph of §5 (`params.blend.weight`) between the template and the
+//!    fitted result, positions and texture.
 //!
-//! Not implemented: the morphing of §5 (`params.blend`).
+//! Not implemented: the region blend of §5 (`params.blend.region`, Poisson blending), refused.
 //! Known shortfalls (measured by the tests, 2026-12-01/02): on an open disc with boundary-loop
 //! pairs one boundary vertex folds inward (0.9 % of the area flipped); a deformed copy of the
 //! Lee Perry-Smith scan fitted back onto it reaches a Hausdorff distance of 6.8 % of the
@@ -27,6 +29,7 @@
 //! 13.7 % against 2.4 % on the base meshes), and the originals stage pins the template's tunnels
 //! to the openings. README "elastiface" lists the remedies tried.
 
+pub mod blend;
 pub mod boundary;
 pub mod fairing;
 pub mod frame;
@@ -108,6 +111,9 @@ pub struct ElastifaceReport {
     pub residuals: metrics::Residuals,
     /// Output mode.
     pub output: OutputMode,
+    /// The morph weight of §5 (`params.blend.weight`), when given. The metrics above are those of
+    /// the fitted result (w = 1).
+    pub blend_weight: Option<f64>,
     /// Baked textures.
     pub textures: Vec<TextureReport>,
     /// Primitives that received COLOR_0 through the shared vertex path.
@@ -341,20 +347,27 @@ pub fn run(
     let _span = control.span(0.55, 1.0);
     let world: Vec<[f64; 3]> = fitted.iter().map(|p| frame.solve_to_target(*p)).collect();
     let welded = writeback::welded_map(source, &src);
+    let morph = params.output == OutputMode::MorphTarget;
+    let blend_weight = params.blend_weight();
+    let placed = match blend_weight {
+        Some(w) if !morph => blend::blend_positions(&src_world, &world, w),
+        _ => world.clone(),
+    };
     let to_source = |q: [f64; 3]| frame.target_to_source(q);
     let follow = |p: [f64; 3]| match src_bvh.closest_point(p.map(|c| c as f32), f32::INFINITY) {
-        Some(h) => refs::RefRow::face(src.faces[h.face as usize], h.bary).eval(&world),
+        Some(h) => refs::RefRow::face(src.faces[h.face as usize], h.bary).eval(&placed),
         None => frame.similarity.apply(p),
     };
     let mut edits = writeback::geometry_edits(
         source,
         &writeback::Placement {
-            fitted: &world,
+            fitted: &placed,
             faces: &src.faces,
             welded: &welded,
             to_source_frame: &to_source,
             follow_surface: &follow,
-            morph: params.output == OutputMode::MorphTarget,
+            morph,
+            morph_weight: params.blend.as_ref().map_or(0.0, |b| b.weight as f32),
         },
     )?;
     let mut textures = Vec::new();
@@ -369,6 +382,7 @@ pub fn run(
             target_surface: &tgt,
             target_bvh: &tgt_bvh,
             sampler: MaterialSampler::new(target),
+            blend: blend_weight.map(|w| blend::TemplateColor::new(source, w)),
         };
         let (tex_edits, out) = texture::relay_texture(&field, constraints, control)?;
         edits.extend(tex_edits);
@@ -408,6 +422,7 @@ pub fn run(
         flipped,
         residuals,
         output: params.output,
+        blend_weight: params.blend.as_ref().map(|b| b.weight),
         textures,
         vertex_colors,
         warnings: warnings.clone(),

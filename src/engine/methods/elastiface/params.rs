@@ -17,6 +17,19 @@ pub enum OutputMode {
     MorphTarget,
 }
 
+/// The morphing of §5 ([`super::blend`]): template and fitted result blended by `weight`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct BlendParams {
+    /// Blend weight w: 0 gives the template back, 1 the fitted head with its re-laid texture.
+    #[schemars(range(min = 0, max = 1))]
+    pub weight: f64,
+    /// A region (a COLOR_0 channel of the source or a list of faces) for the Poisson blend:
+    /// not implemented yet, refused.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub region: Option<serde_json::Value>,
+}
+
 /// Parameters of the `elastiface` method.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
@@ -50,6 +63,11 @@ pub struct ElastifaceParams {
     pub reference_diagonal: f64,
     /// `positions` (default) or `morph_target`.
     pub output: OutputMode,
+    /// Morphing (§5): `{"weight": w}` blends positions and base colour linearly between the
+    /// template (w = 0) and the fitted result (w = 1). With `output = "morph_target"` the weight
+    /// is the morph target's default weight. Absent: the fitted result (w = 1).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub blend: Option<BlendParams>,
     /// Shared: [`SharedParams::vertex_color_samples`] (unused: colour is written on the
     /// source's own vertices).
     pub vertex_color_samples: usize,
@@ -71,6 +89,7 @@ impl Default for ElastifaceParams {
             original_iterations: 2,
             reference_diagonal: 50.0,
             output: OutputMode::Positions,
+            blend: None,
             vertex_color_samples: shared.vertex_color_samples,
             snap_tolerance: shared.snap_tolerance,
             weld_tolerance: shared.weld_tolerance,
@@ -84,6 +103,27 @@ impl ElastifaceParams {
     /// # Errors
     /// A [`ConstraintsError`] naming `params.<field>`.
     pub fn from_constraints(c: &Constraints) -> Result<Self, ConstraintsError> {
-        crate::engine::methods::params::parse(c)
+        let params: Self = crate::engine::methods::params::parse(c)?;
+        if let Some(blend) = &params.blend {
+            if !blend.weight.is_finite() {
+                return Err(ConstraintsError::new(
+                    "params.blend.weight",
+                    "must be a number in [0, 1]",
+                ));
+            }
+            if blend.region.is_some() {
+                return Err(ConstraintsError::new(
+                    "params.blend.region",
+                    "the region blend (Poisson blending of Laplacians and texture gradients, §5) \
+                     is not implemented yet; use params.blend.weight alone",
+                ));
+            }
+        }
+        Ok(params)
+    }
+
+    /// The blend weight in effect: `None` for no blend or w = 1 (the fitted result as is).
+    pub fn blend_weight(&self) -> Option<f64> {
+        self.blend.as_ref().map(|b| b.weight).filter(|&w| w != 1.0)
     }
 }

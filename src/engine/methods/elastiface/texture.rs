@@ -9,6 +9,8 @@
 //! in linear colour). No distance or normal gating. The texel loop then pads with its dilation and
 //! pull-push (more robust than the paper's one-pixel dilation).
 //!
+//! With `params.blend` the template's own colour is mixed in per texel ([`super::blend`]).
+//!
 //! Source primitives without UVs receive COLOR_0 on their *own* vertices (the shared vertex path
 //! would refine them, which would change the vertex count ElastiFace must keep), unless
 //! `output.vertex_colors` is set, in which case the shared path already writes own vertices.
@@ -23,6 +25,7 @@ use crate::engine::methods::output::{write_field, OutputReport, SurfaceField, Su
 use crate::engine::spatial::Bvh;
 use crate::engine::texture::sample::MaterialSampler;
 
+use super::blend::TemplateColor;
 use super::MethodError;
 
 /// The target's colour at the fitted source.
@@ -41,6 +44,8 @@ pub struct RelaidColor<'a> {
     pub target_bvh: &'a Bvh,
     /// The target's material sampler.
     pub sampler: MaterialSampler<'a>,
+    /// The morph of §5: the template's own colour blended in ([`super::blend`]), or `None`.
+    pub blend: Option<TemplateColor<'a>>,
 }
 
 impl RelaidColor<'_> {
@@ -86,7 +91,10 @@ impl SurfaceField for RelaidColor<'_> {
             .get(at.triangle)?;
         let p = self.fitted_point(at.primitive, tri, at.barycentric)?;
         let (color, face) = self.color_near(p, hint)?;
-        *out = color;
+        *out = match &self.blend {
+            Some(b) => b.at_point(color, at.primitive, at.triangle, at.barycentric),
+            None => color,
+        };
         Some(face)
     }
 }
@@ -135,10 +143,14 @@ pub fn relay_texture(
             }
             let colors: Vec<[f32; 4]> = (0..prim.positions.len() as u32)
                 .map(|v| {
-                    field
+                    let c = field
                         .fitted_point(p, [v; 3], [1.0, 0.0, 0.0])
                         .and_then(|q| field.color_near(q, None))
-                        .map_or([1.0; 4], |c| c.0)
+                        .map_or([1.0; 4], |c| c.0);
+                    match &field.blend {
+                        Some(b) => b.at_vertex(c, p, v as usize),
+                        None => c,
+                    }
                 })
                 .collect();
             edits.push(Edit::SetAttribute {

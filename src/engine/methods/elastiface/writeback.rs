@@ -12,7 +12,7 @@
 //! barycentric coordinates on the fitted surface).
 //!
 //! With `output = "morph_target"` POSITION is kept and one morph target `elastiface` (default
-//! weight 0, so the rig's neutral shape is unchanged) holds the mesh-local displacement in the
+//! weight 0, or `params.blend.weight` when given, so without a blend the rig's neutral shape is unchanged) holds the mesh-local displacement in the
 //! source's own frame: the inverse of the initial similarity is applied first, so the blend shape
 //! does not move or scale the head. Existing morph targets are kept (export extends `weights`).
 //!
@@ -142,6 +142,8 @@ pub struct Placement<'a> {
     pub follow_surface: &'a dyn Fn([f64; 3]) -> [f64; 3],
     /// Write a morph target instead of POSITION.
     pub morph: bool,
+    /// The morph target's default weight (0, or the blend weight of §5).
+    pub morph_weight: f32,
 }
 
 /// The geometry edits (POSITION, NORMAL, TANGENT, or the morph target).
@@ -223,7 +225,7 @@ pub fn geometry_edits(source: &Asset, place: &Placement<'_>) -> Result<Vec<Edit>
         edits.push(Edit::AddMorphTarget {
             mesh,
             name: "elastiface".into(),
-            weight: 0.0,
+            weight: place.morph_weight,
             deltas,
         });
     }
