@@ -63,6 +63,10 @@ struct StageState {
     floor: f64,
     /// Start of the current stage.
     stage_start: Option<Instant>,
+    /// The absolute span the current stage started in: its ticks move the fraction there, even
+    /// after a new span opens before the next stage (a poll between a span's opening and its
+    /// first stage would otherwise map the finished stage onto the new span's end).
+    stage_span: (f64, f64),
     /// Finished stages.
     timings: Vec<StageTiming>,
 }
@@ -172,6 +176,7 @@ impl Control {
             };
             s.started += 1;
             s.stage_start = Some(now);
+            s.stage_span = s.span();
             self.inner.total.store(total_work, Ordering::Relaxed);
             self.inner.done.store(0, Ordering::Relaxed);
         }
@@ -188,12 +193,12 @@ impl Control {
         }
     }
 
-    /// The fraction the current stage's ticks give inside the innermost span.
+    /// The fraction the current stage's ticks give inside the span it started in.
     fn fraction_in(&self, s: &StageState) -> f64 {
         if s.started == 0 {
             return 0.0;
         }
-        let (lo, hi) = s.span();
+        let (lo, hi) = s.stage_span;
         lo + (hi - lo) * self.stage_fraction()
     }
 
@@ -316,6 +321,20 @@ mod tests {
         let names: Vec<String> = c.timings().into_iter().map(|t| t.stage).collect();
         assert_eq!(names, ["a", "b", "level 1/2: c"]);
         assert!(c.timings().iter().all(|t| t.ms >= 0.0));
+    }
+
+    #[test]
+    fn a_finished_stage_does_not_jump_into_a_span_opened_after_it() {
+        let c = Control::new();
+        let load = c.span(0.0, 0.05);
+        c.stage("load", 4).unwrap().tick(4).unwrap();
+        drop(load);
+        let _method = c.span(0.05, 0.95);
+        // No stage of the method yet: the finished load is still 5 %, not 95 %.
+        let f = c.progress().fraction;
+        assert!((f - 0.05).abs() < 1e-9, "{f}");
+        c.stage("first", 2).unwrap().tick(1).unwrap();
+        assert!((c.progress().fraction - 0.5).abs() < 1e-9);
     }
 
     #[test]
