@@ -15,7 +15,9 @@ use retex::engine::asset::images::{decode_rgba8, read_header};
 use retex::engine::asset::{load, BlobSet, IngestError, IngestLimits};
 use retex::engine::control::Control;
 use retex::engine::methods::Registry;
-use retex::engine::pipeline::{checked_method, transfer, ModelInput, TransferError, TransferInput};
+use retex::engine::pipeline::{
+    checked_method, transfer, ModelInput, TransferError, TransferInput, TransferOutput,
+};
 
 use crate::common;
 
@@ -109,6 +111,29 @@ fn glb_blobs(glb: Vec<u8>) -> BlobSet {
     b
 }
 
+/// Runs the whole transfer on two GLBs held in memory, under `limits`.
+fn transfer_glbs(
+    source: Vec<u8>,
+    target: Vec<u8>,
+    constraints: Constraints,
+    limits: IngestLimits,
+) -> Result<TransferOutput, TransferError> {
+    let (src, tgt) = (glb_blobs(source), glb_blobs(target));
+    let input = TransferInput::pair(
+        ModelInput {
+            main: "m.glb",
+            blobs: &src,
+        },
+        ModelInput {
+            main: "m.glb",
+            blobs: &tgt,
+        },
+        constraints,
+    )
+    .with_limits(limits);
+    transfer(&input, &Control::new())
+}
+
 #[test]
 fn a_small_png_declaring_16384_squared_is_refused_naming_the_image_and_the_limit() {
     let bomb = common::bomb_png(16384, 16384);
@@ -141,19 +166,7 @@ fn a_small_png_declaring_16384_squared_is_refused_naming_the_image_and_the_limit
         "tgt_spot_remeshed_odedstein/spot_derived.glb",
     ))
     .unwrap();
-    let (src, tgt) = (glb_blobs(glb), glb_blobs(spot));
-    let input = TransferInput::pair(
-        ModelInput {
-            main: "m.glb",
-            blobs: &src,
-        },
-        ModelInput {
-            main: "m.glb",
-            blobs: &tgt,
-        },
-        Constraints::default(),
-    );
-    let e = transfer(&input, &Control::new()).unwrap_err();
+    let e = transfer_glbs(glb, spot, Constraints::default(), IngestLimits::default()).unwrap_err();
     assert!(
         matches!(
             &e,
@@ -174,20 +187,7 @@ fn the_budget_is_summed_over_the_inputs_of_a_job() {
         ..IngestLimits::default()
     };
     let glb = common::textured_triangle_glb(&[common::bomb_png(512, 512)], 1);
-    let (src, tgt) = (glb_blobs(glb.clone()), glb_blobs(glb));
-    let input = TransferInput::pair(
-        ModelInput {
-            main: "m.glb",
-            blobs: &src,
-        },
-        ModelInput {
-            main: "m.glb",
-            blobs: &tgt,
-        },
-        Constraints::default(),
-    )
-    .with_limits(limits);
-    let e = transfer(&input, &Control::new()).unwrap_err();
+    let e = transfer_glbs(glb.clone(), glb, Constraints::default(), limits).unwrap_err();
     match &e {
         TransferError::Ingest {
             side: "target",
@@ -380,20 +380,7 @@ fn instanced_triangles_over_the_budget_are_refused() {
         max_triangles: 500,
         ..IngestLimits::default()
     };
-    let (src, tgt) = (glb_blobs(glb.clone()), glb_blobs(glb));
-    let input = TransferInput::pair(
-        ModelInput {
-            main: "m.glb",
-            blobs: &src,
-        },
-        ModelInput {
-            main: "m.glb",
-            blobs: &tgt,
-        },
-        Constraints::default(),
-    )
-    .with_limits(limits);
-    let e = transfer(&input, &Control::new()).unwrap_err();
+    let e = transfer_glbs(glb.clone(), glb, Constraints::default(), limits).unwrap_err();
     assert!(
         matches!(
             e,
@@ -470,20 +457,7 @@ fn meshmatch_on_inputs_too_large_for_its_working_set_is_refused_before_it_runs()
     };
     assert!(checked_method(&registry, &constraints, &limits).is_ok());
     let glb = common::textured_triangle_glb(&[common::small_png(2, 2)], 2000);
-    let (src, tgt) = (glb_blobs(glb.clone()), glb_blobs(glb));
-    let input = TransferInput::pair(
-        ModelInput {
-            main: "m.glb",
-            blobs: &src,
-        },
-        ModelInput {
-            main: "m.glb",
-            blobs: &tgt,
-        },
-        constraints,
-    )
-    .with_limits(limits);
-    let e = transfer(&input, &Control::new()).unwrap_err();
+    let e = transfer_glbs(glb.clone(), glb, constraints, limits).unwrap_err();
     match &e {
         TransferError::WorkingSet { field, bytes, max } => {
             assert_eq!(field, "inputs");
@@ -508,19 +482,7 @@ fn a_mask_image_the_method_reads_counts_against_the_budget() {
     )
     .unwrap();
     let source = common::textured_triangle_glb(&[common::small_png(2, 2)], 1);
-    let (src, tgt) = (glb_blobs(source), glb_blobs(target));
-    let input = TransferInput::pair(
-        ModelInput {
-            main: "m.glb",
-            blobs: &src,
-        },
-        ModelInput {
-            main: "m.glb",
-            blobs: &tgt,
-        },
-        constraints,
-    );
-    let e = transfer(&input, &Control::new()).unwrap_err();
+    let e = transfer_glbs(source, target, constraints, IngestLimits::default()).unwrap_err();
     assert!(
         matches!(
             e,
@@ -561,20 +523,7 @@ fn elastiface_on_inputs_too_large_for_its_solves_is_refused_before_it_runs() {
     };
     assert!(checked_method(&registry, &constraints, &limits).is_ok());
     let glb = common::textured_triangle_glb(&[common::small_png(2, 2)], 2000);
-    let (src, tgt) = (glb_blobs(glb.clone()), glb_blobs(glb));
-    let input = TransferInput::pair(
-        ModelInput {
-            main: "m.glb",
-            blobs: &src,
-        },
-        ModelInput {
-            main: "m.glb",
-            blobs: &tgt,
-        },
-        constraints,
-    )
-    .with_limits(limits);
-    match transfer(&input, &Control::new()).unwrap_err() {
+    match transfer_glbs(glb.clone(), glb, constraints, limits).unwrap_err() {
         TransferError::WorkingSet { field, bytes, max } => {
             assert_eq!(field, "inputs");
             assert_eq!(max, 4 << 20);

@@ -223,6 +223,26 @@ impl MeshInstance {
 }
 
 impl Asset {
+    /// The decoded pixels of image `index`, for a method that samples an image other than the
+    /// base colour (a mask): the method names it in `Method::extra_images`, and the pipeline
+    /// decodes it under the job's image limits before the method runs.
+    ///
+    /// # Errors
+    /// A message for the constraint field at fault: the image does not exist, or it was not
+    /// decoded (the method did not declare it: a retex bug, reported rather than decoded here
+    /// without the job's limits).
+    pub fn decoded_image(&self, index: usize) -> Result<&Arc<DecodedImage>, String> {
+        let image = self.images.get(index).ok_or_else(|| {
+            format!(
+                "image {index} does not exist (the model has {})",
+                self.images.len()
+            )
+        })?;
+        image.decoded.as_ref().ok_or_else(|| {
+            format!("image {index} was not decoded: the method did not declare it as read")
+        })
+    }
+
     /// Indices into [`Asset::primitives`] of the primitives of glTF mesh `mesh`.
     pub fn primitives_of_mesh(&self, mesh: usize) -> impl Iterator<Item = usize> + '_ {
         self.primitives

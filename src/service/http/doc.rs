@@ -100,53 +100,22 @@ pub struct JobLinks {
     pub artifacts: Vec<ArtifactLink>,
 }
 
-/// The job document of `GET /v1/jobs/{id}`.
+/// The job document of `GET /v1/jobs/{id}`: the job's summary plus its method report.
 #[derive(Clone, Debug, Serialize, ToSchema)]
 pub struct JobDocument {
-    /// Job id.
-    pub id: Uuid,
-    /// Status.
-    #[schema(value_type = JobStatusSchema)]
-    pub status: JobStatus,
-    /// Method id (`project`, ...).
-    pub method: String,
-    /// Progress.
-    pub progress: ProgressDoc,
-    /// When the job was accepted.
-    pub created_at: DateTime<Utc>,
-    /// When a worker last started it.
-    pub started_at: Option<DateTime<Utc>>,
-    /// When it reached a terminal state.
-    pub finished_at: Option<DateTime<Utc>>,
-    /// Why it failed.
-    #[schema(value_type = Option<ProblemSchema>)]
-    pub error: Option<Problem>,
+    /// Everything a job list shows of the job.
+    #[serde(flatten)]
+    pub summary: JobSummary,
     /// Method figures: coverage, timings per stage, warnings.
     pub report: Option<serde_json::Value>,
-    /// Times a worker started it.
-    pub attempts: u32,
-    /// Revision (the ETag).
-    pub revision: u64,
-    /// Related resources.
-    pub links: JobLinks,
 }
 
 impl JobDocument {
     /// The document of a stored job.
     pub fn from_record(r: &JobRecord) -> Self {
         Self {
-            id: r.id,
-            status: r.status,
-            method: r.method.clone(),
-            progress: progress_doc(r),
-            created_at: r.created_at,
-            started_at: r.started_at,
-            finished_at: r.finished_at,
-            error: r.error.clone(),
+            summary: JobSummary::from_record(r),
             report: r.report.clone(),
-            attempts: r.attempts,
-            revision: r.revision,
-            links: links(r),
         }
     }
 }
@@ -207,7 +176,7 @@ pub struct JobSummary {
     pub error: Option<Problem>,
     /// Times a worker started it.
     pub attempts: u32,
-    /// Revision (the ETag of its document).
+    /// Revision (the ETag of the job document).
     pub revision: u64,
     /// Related resources.
     pub links: JobLinks,

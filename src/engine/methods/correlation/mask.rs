@@ -6,8 +6,7 @@
 //! channels in linear space, alpha as stored), as MeshMatch's example mask reads them.
 
 use crate::engine::asset::constraints::ConstraintsError;
-use crate::engine::asset::images::{decode_rgba8, sniff};
-use crate::engine::asset::{Asset, IngestLimits, Sampler};
+use crate::engine::asset::{Asset, Sampler};
 use crate::engine::mesh::Surface;
 use crate::engine::methods::meshmatch::example::Channel;
 use crate::engine::multires::FacePoint;
@@ -86,30 +85,9 @@ pub fn training_weights(
                 .collect()
         }
         SourceMask::Image { index, channel, .. } => {
-            let image = asset.images.get(*index).ok_or_else(|| {
-                err(
-                    ".image.index",
-                    format!(
-                        "image {index} does not exist (the source has {})",
-                        asset.images.len()
-                    ),
-                )
-            })?;
-            let decoded = match &image.decoded {
-                Some(d) => d.clone(),
-                None => {
-                    let format = sniff(&image.bytes).ok_or_else(|| {
-                        err(
-                            ".image.index",
-                            format!("image {index} is neither PNG nor JPEG"),
-                        )
-                    })?;
-                    std::sync::Arc::new(
-                        decode_rgba8(*index, &image.bytes, format, &IngestLimits::default())
-                            .map_err(|e| err(".image.index", e.to_string()))?,
-                    )
-                }
-            };
+            let decoded = asset
+                .decoded_image(*index)
+                .map_err(|e| err(".image.index", e))?;
             let sampler = MaterialSampler::new(asset);
             let c = channel_index(*channel);
             at.iter()

@@ -16,8 +16,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use crate::engine::asset::constraints::ConstraintsError;
-use crate::engine::asset::images::{decode_rgba8, sniff};
-use crate::engine::asset::{Asset, IngestLimits, Sampler};
+use crate::engine::asset::{Asset, Sampler};
 use crate::engine::mesh::Surface;
 use crate::engine::texture::sample::{sample_image, MaterialSampler};
 
@@ -178,30 +177,9 @@ pub fn painted_vertices(
             channel,
             threshold,
         } => {
-            let image = asset.images.get(*index).ok_or_else(|| {
-                err(
-                    ".image.index",
-                    format!(
-                        "image {index} does not exist (the asset has {})",
-                        asset.images.len()
-                    ),
-                )
-            })?;
-            let decoded = match &image.decoded {
-                Some(d) => d.clone(),
-                None => {
-                    let format = sniff(&image.bytes).ok_or_else(|| {
-                        err(
-                            ".image.index",
-                            format!("image {index} is neither PNG nor JPEG"),
-                        )
-                    })?;
-                    std::sync::Arc::new(
-                        decode_rgba8(*index, &image.bytes, format, &IngestLimits::default())
-                            .map_err(|e| err(".image.index", e.to_string()))?,
-                    )
-                }
-            };
+            let decoded = asset
+                .decoded_image(*index)
+                .map_err(|e| err(".image.index", e))?;
             let sampler = MaterialSampler::new(asset);
             let c = channel.index();
             values_at_vertices(asset, input, mesh, |prim, tri, bary| {
