@@ -750,6 +750,7 @@ impl<'a> CoarseToFine<'a> {
                 source_adjacency: src_levels.rings(level),
                 source_hierarchy: &src_levels.hierarchy,
                 level,
+                whole_source_draws: level + 1 == levels,
                 randomized_rotations: params.randomized_rotations,
                 fixed: lv.fixed,
                 seed: mix(seed, level as u64, it as u64),

@@ -21,7 +21,8 @@
 //!
 //! **Random search.** For the current match `s` and `j = 1, 2, …` up to the coarsest source level,
 //! a uniformly random descendant of `s`'s ancestor `j` levels up (Figure 4): samples at distances
-//! growing like `√2^j`. On the coarsest level, uniform samples over the whole source. Each
+//! growing like `√2^j`. On the coarsest level synthesised (`EStep::whole_source_draws`; not
+//! necessarily the source hierarchy's top), uniform samples over the whole source level. Each
 //! target vertex has its own seeded generator, so the result does not depend on threads.
 
 use rayon::prelude::*;
@@ -174,6 +175,10 @@ pub struct EStep<'a> {
     pub source_hierarchy: &'a Hierarchy,
     /// Level index.
     pub level: usize,
+    /// Whether random search also draws uniformly over the whole source level: on the coarsest
+    /// level synthesised, which is not the source hierarchy's top when the source has more
+    /// levels than the target.
+    pub whole_source_draws: bool,
     /// Randomized rotation search instead of exhaustive.
     pub randomized_rotations: bool,
     /// Target vertices whose match never changes (by-example mode); `None`: none.
@@ -328,7 +333,7 @@ impl EStep<'_> {
                     let c = h.random_descendant(self.level + j, ancestor, j, &mut rng);
                     consider(c, &mut rng, s, k, d);
                 }
-                if self.level == top {
+                if self.whole_source_draws {
                     for _ in 0..draws_at_top {
                         let c = rng.below(source_count) as u32;
                         consider(c, &mut rng, s, k, d);
@@ -397,4 +402,90 @@ pub fn components(adjacency: (&[u32], &[u32]), n: usize) -> (Vec<u32>, Vec<u32>)
         }
     }
     (label, firsts)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::engine::control::Control;
+    use crate::engine::mesh::primitives::icosphere;
+    use crate::engine::multires::{build_hierarchy, HierarchyParams};
+
+    fn distance(a: [f32; 3], b: [f32; 3]) -> f32 {
+        (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f32>().sqrt()
+    }
+
+    /// A source hierarchy deeper than the synthesis: on the coarsest level synthesised (1), the
+    /// random search must still draw over the whole source. Shape-only patches: the dissimilarity
+    /// of a source vertex is its distance to a pole, and every match starts at the far pole, so
+    /// hierarchical draws (descendants of the far pole's ancestors) cannot get near the pole.
+    #[test]
+    fn random_search_draws_over_the_whole_source_on_the_coarsest_synthesised_level() {
+        let sphere = icosphere(1.0, 16);
+        let params = HierarchyParams {
+            min_vertices: 32,
+            ..Default::default()
+        };
+        let h = build_hierarchy(&sphere, &params, &Control::new()).unwrap();
+        assert!(h.level_count() >= 4, "{} levels", h.level_count());
+        let level = 1;
+        let positions = &h.level(level).surface.positions;
+        let pole = [0.0, 0.0, 1.0];
+        let source_shape: Vec<f32> = positions.iter().map(|&p| distance(p, pole)).collect();
+        let far = (0..positions.len())
+            .max_by(|&a, &b| source_shape[a].total_cmp(&source_shape[b]))
+            .unwrap() as u32;
+        let targets = 64;
+        let target_shape = vec![0.0f32; targets];
+        // One-float fans, equal everywhere: only the shape distance differs.
+        let (target_fans, source_fans) = (vec![0.0f32; targets], vec![0.0f32; positions.len()]);
+        let rings = (vec![0u32; targets + 1], Vec::new());
+        let source_rings = (vec![0u32; positions.len() + 1], Vec::new());
+        let mean_after = |whole_source_draws: bool| {
+            let step = EStep {
+                space: PatchSpace {
+                    fan: FanShape {
+                        rings: 1,
+                        spokes: 1,
+                        dim: 1,
+                    },
+                    target_fans: &target_fans,
+                    source_fans: &source_fans,
+                    target_shape: &target_shape,
+                    source_shape: &source_shape,
+                    shape_dim: 1,
+                    source_allowed: None,
+                    exclude: None,
+                },
+                target_adjacency: (&rings.0, &rings.1),
+                source_adjacency: (&source_rings.0, &source_rings.1),
+                source_hierarchy: &h,
+                level,
+                whole_source_draws,
+                randomized_rotations: false,
+                fixed: None,
+                seed: 7,
+            };
+            let mut nnf = Nnf {
+                source: vec![far; targets],
+                rotation: vec![0; targets],
+                distance: vec![source_shape[far as usize].powi(2); targets],
+            };
+            step.random_search(&mut nnf);
+            nnf.source
+                .iter()
+                .map(|&s| source_shape[s as usize])
+                .sum::<f32>()
+                / targets as f32
+        };
+        let hierarchical = mean_after(false);
+        let whole = mean_after(true);
+        // Hierarchical draws stay in the far pole's top-level cluster; uniform draws (about
+        // log₂ n of them) land on average within about a radian of the pole.
+        assert!(
+            hierarchical > 1.5,
+            "hierarchical draws reached {hierarchical}"
+        );
+        assert!(whole < 1.0, "whole-source draws reached only {whole}");
+    }
 }
