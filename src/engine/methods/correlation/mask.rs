@@ -96,7 +96,7 @@ pub fn training_weights(
                         return 0.0;
                     };
                     match sampler.texture_uv(prim, tri, b) {
-                        Some(uv) => sample_image(&decoded, &Sampler::default(), uv)[c],
+                        Some(uv) => sample_image(decoded, &Sampler::default(), uv)[c],
                         None => 0.0,
                     }
                 })

@@ -184,7 +184,7 @@ pub fn painted_vertices(
             let c = channel.index();
             values_at_vertices(asset, input, mesh, |prim, tri, bary| {
                 match sampler.texture_uv(prim, tri, bary) {
-                    Some(uv) => sample_image(&decoded, &Sampler::default(), uv)[c],
+                    Some(uv) => sample_image(decoded, &Sampler::default(), uv)[c],
                     None => 0.0,
                 }
             })
