@@ -217,11 +217,12 @@ fn shared(rel: &str) -> (String, BlobSet) {
 fn elastiface_head_onto_nefertiti_with_landmarks() {
     let (m, b) = shared("tgt_nefertiti_bust_odedstein/nefertiti-lowres_derived.glb");
     let (fig, r, _) = head_onto(&m, &b, "head_to_nefertiti.json");
-    // The issue's threshold is met on the face: measured 0.25 %.
+    // The issue's threshold is met on the face: measured 0.23 %.
     assert!(fig.hausdorff < 0.01, "face hausdorff {}", fig.hausdorff);
     assert!(fig.mean < 0.001, "face mean {}", fig.mean);
-    // Missed (issue: 0.01 %): measured 0.20 %.
-    assert!(fig.flipped < 0.004, "face flipped {}", fig.flipped);
+    // Missed (issue: 0.01 %): measured 0.42 % (0.20 % without the backward rounds of the
+    // originals stage, which raise it here while lowering it on the other cases).
+    assert!(fig.flipped < 0.006, "face flipped {}", fig.flipped);
     assert!(r["residuals"]["rms"].as_f64().unwrap() < 0.005);
 }
 
@@ -230,9 +231,10 @@ fn elastiface_head_onto_nefertiti_with_landmarks() {
 fn elastiface_head_onto_demosthenes_with_landmarks() {
     let (m, b) = shared("tgt_demosthenes_bust_odedstein/demosthenes-low-res_derived.glb");
     let (fig, r, _) = head_onto(&m, &b, "head_to_demosthenes.json");
-    // Missed (issue: 1 %, 0.01 %): measured 6.6 % and 22 % of the face area flipped. These
-    // bounds only guard against regressions; the mean distance shows the face is on the bust.
-    assert!(fig.hausdorff < 0.1, "face hausdorff {}", fig.hausdorff);
+    // Missed (issue: 1 %, 0.01 %): measured 2.5 % and 21 % of the face area flipped (6.6 % and
+    // 22 % without the backward rounds). These bounds only guard against regressions; the mean
+    // distance shows the face is on the bust.
+    assert!(fig.hausdorff < 0.04, "face hausdorff {}", fig.hausdorff);
     assert!(fig.mean < 0.003, "face mean {}", fig.mean);
     assert!(fig.flipped < 0.3, "face flipped {}", fig.flipped);
     assert!(r["residuals"]["rms"].as_f64().unwrap() < 0.01);
@@ -263,11 +265,12 @@ fn elastiface_head_onto_its_deformed_copy_with_landmarks() {
         .sum::<f64>()
         / fitted.len() as f64;
     eprintln!("deformed copy: mean map error {err:.5}");
-    // Missed (issue: 1 %, 0.01 %): measured face Hausdorff 4.1 %, 1.8 % of the face area
-    // flipped; map error 1.5 % of the diagonal.
-    assert!(fig.hausdorff < 0.06, "face hausdorff {}", fig.hausdorff);
+    // The issue's 1 % is met on the face: measured 0.76 % (4.1 % without the backward rounds
+    // of the originals stage); bound + 0.14 points. Missed (issue: 0.01 %): 0.14 % of the face
+    // area flipped (1.8 % before). Map error 1.4 % of the diagonal.
+    assert!(fig.hausdorff < 0.009, "face hausdorff {}", fig.hausdorff);
     assert!(fig.mean < 0.001, "face mean {}", fig.mean);
-    assert!(fig.flipped < 0.03, "face flipped {}", fig.flipped);
+    assert!(fig.flipped < 0.003, "face flipped {}", fig.flipped);
     assert!(err < 0.03, "map error {err}");
     assert!(r["residuals"]["rms"].as_f64().unwrap() < 0.005);
 }
