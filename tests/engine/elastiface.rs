@@ -243,7 +243,8 @@ fn report(out: &retex::engine::pipeline::TransferOutput) -> &Value {
 
 #[test]
 fn elastiface_bump_and_stretch_beats_snapping() {
-    bump_case("elastiface_bump.glb", 0.01);
+    // Measured 0.36 % (0.67 % before the backward rounds); bound + 0.24 points.
+    bump_case("elastiface_bump.glb", 0.006);
 }
 
 /// The thresholds of `elastiface_bump_and_stretch_beats_snapping` over five pairs (bump height,
@@ -265,9 +266,10 @@ fn elastiface_bump_threshold_sweep() {
             })
         });
         eprintln!("variant bump {bump} stretch {stretch:?} turn {turn}:");
-        // The 1 % holds on four of the five pairs; the bump without stretch measures
-        // 1.03 % (a gap, recorded in the README), hence 1.1 % here.
-        bump_case(&format!("elastiface_bump_sweep{k}.glb"), 0.011);
+        // Measured 2026-12-02 with the backward rounds of the originals stage: 0.19-0.70 %
+        // (the bump without stretch the largest; 1.03 % before them). Bound: the largest
+        // figure + 0.2 points, under the 1 %.
+        bump_case(&format!("elastiface_bump_sweep{k}.glb"), 0.009);
     }
 }
 

@@ -10,12 +10,13 @@
 //! landmark. Flipped triangles are counted as the report does (normal against the target's face
 //! normal at the closest point to the centroid), over the same region.
 //!
-//! Measured 2026-12-01 (the bounds below are these figures with a margin, not the issue's targets
-//! where they are missed): Nefertiti: face Hausdorff 0.25 % (mean 0.011 %), face flipped area
-//! 0.20 %; deformed copy: face Hausdorff 4.1 %, face flipped area 1.8 %, mean map error 1.5 %;
-//! Demosthenes: face Hausdorff 6.6 % (mean 0.09 %), face flipped area 22 %. The issue asks for
-//! < 1 % and < 0.01 %. Previews of the three results were looked at (`retex preview`): the face
-//! lands on each target; Demosthenes' beard and mouth come out crumpled.
+//! Measured 2026-12-02 with the backward rounds of the originals stage (the bounds below are
+//! these figures with a margin, not the issue's targets where they are missed): Nefertiti: face
+//! Hausdorff 0.23 % (mean 0.011 %), face flipped area 0.42 %; deformed copy: face Hausdorff
+//! 0.76 %, face flipped area 0.14 %, mean map error 1.4 %; Demosthenes: face Hausdorff 2.5 %,
+//! face flipped area 21 %. The issue asks for < 1 % and < 0.01 %. Previews were looked at
+//! (`retex preview`): the face lands on each target; Nefertiti's crown, which the template has
+//! no counterpart for, comes out as large spiky triangles (outside the face region).
 
 use retex::engine::asset::{Asset, BlobSet};
 use retex::engine::control::Control;
@@ -217,11 +218,12 @@ fn shared(rel: &str) -> (String, BlobSet) {
 fn elastiface_head_onto_nefertiti_with_landmarks() {
     let (m, b) = shared("tgt_nefertiti_bust_odedstein/nefertiti-lowres_derived.glb");
     let (fig, r, _) = head_onto(&m, &b, "head_to_nefertiti.json");
-    // The issue's threshold is met on the face: measured 0.25 %.
+    // The issue's threshold is met on the face: measured 0.23 %.
     assert!(fig.hausdorff < 0.01, "face hausdorff {}", fig.hausdorff);
     assert!(fig.mean < 0.001, "face mean {}", fig.mean);
-    // Missed (issue: 0.01 %): measured 0.20 %.
-    assert!(fig.flipped < 0.004, "face flipped {}", fig.flipped);
+    // Missed (issue: 0.01 %): measured 0.42 % (0.20 % without the backward rounds of the
+    // originals stage, which raise it here while lowering it on the other cases).
+    assert!(fig.flipped < 0.006, "face flipped {}", fig.flipped);
     assert!(r["residuals"]["rms"].as_f64().unwrap() < 0.005);
 }
 
@@ -230,9 +232,10 @@ fn elastiface_head_onto_nefertiti_with_landmarks() {
 fn elastiface_head_onto_demosthenes_with_landmarks() {
     let (m, b) = shared("tgt_demosthenes_bust_odedstein/demosthenes-low-res_derived.glb");
     let (fig, r, _) = head_onto(&m, &b, "head_to_demosthenes.json");
-    // Missed (issue: 1 %, 0.01 %): measured 6.6 % and 22 % of the face area flipped. These
-    // bounds only guard against regressions; the mean distance shows the face is on the bust.
-    assert!(fig.hausdorff < 0.1, "face hausdorff {}", fig.hausdorff);
+    // Missed (issue: 1 %, 0.01 %): measured 2.5 % and 21 % of the face area flipped (6.6 % and
+    // 22 % without the backward rounds). These bounds only guard against regressions; the mean
+    // distance shows the face is on the bust.
+    assert!(fig.hausdorff < 0.04, "face hausdorff {}", fig.hausdorff);
     assert!(fig.mean < 0.003, "face mean {}", fig.mean);
     assert!(fig.flipped < 0.3, "face flipped {}", fig.flipped);
     assert!(r["residuals"]["rms"].as_f64().unwrap() < 0.01);
@@ -263,11 +266,12 @@ fn elastiface_head_onto_its_deformed_copy_with_landmarks() {
         .sum::<f64>()
         / fitted.len() as f64;
     eprintln!("deformed copy: mean map error {err:.5}");
-    // Missed (issue: 1 %, 0.01 %): measured face Hausdorff 4.1 %, 1.8 % of the face area
-    // flipped; map error 1.5 % of the diagonal.
-    assert!(fig.hausdorff < 0.06, "face hausdorff {}", fig.hausdorff);
+    // The issue's 1 % is met on the face: measured 0.76 % (4.1 % without the backward rounds
+    // of the originals stage); bound + 0.14 points. Missed (issue: 0.01 %): 0.14 % of the face
+    // area flipped (1.8 % before). Map error 1.4 % of the diagonal.
+    assert!(fig.hausdorff < 0.009, "face hausdorff {}", fig.hausdorff);
     assert!(fig.mean < 0.001, "face mean {}", fig.mean);
-    assert!(fig.flipped < 0.03, "face flipped {}", fig.flipped);
+    assert!(fig.flipped < 0.003, "face flipped {}", fig.flipped);
     assert!(err < 0.03, "map error {err}");
     assert!(r["residuals"]["rms"].as_f64().unwrap() < 0.005);
 }

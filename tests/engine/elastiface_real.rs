@@ -186,11 +186,12 @@ fn elastiface_deformed_head_back_onto_the_textured_head() {
         "map error {mean} vs snapping {base_mean}"
     );
     assert!(psnr > 25.0, "psnr {psnr}");
-    // NOT the targets (Hausdorff < 1 %, flipped area < 0.01 %): measured 2026-12-01,
-    // Hausdorff 6.8 % and 0.32 % of the area flipped (mean map error 1.5 % against 3.0 % for
-    // snapping, PSNR 29.3 dB). Open defect; these bounds only guard against regressions.
-    assert!(h < 0.1, "hausdorff {h}");
-    assert!(flipped < 0.005, "flipped {flipped}");
+    // NOT the targets (Hausdorff < 1 %, flipped area < 0.01 %): measured 2026-12-02,
+    // Hausdorff 1.1 % and 0.043 % of the area flipped (6.8 % and 0.32 % without the backward
+    // rounds of the originals stage; mean map error 1.5 % against 3.0 % for snapping, PSNR
+    // 29.4 dB). Open defect; these bounds only guard against regressions.
+    assert!(h < 0.015, "hausdorff {h}");
+    assert!(flipped < 0.001, "flipped {flipped}");
 }
 
 fn run_gltf_target(

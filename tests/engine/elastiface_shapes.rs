@@ -192,9 +192,10 @@ fn elastiface_disc_boundary_lands_on_the_target_boundary() {
         "only {on} boundary vertices on the target boundary"
     );
     assert!(s2t < 0.01, "hausdorff source->target {s2t}");
-    // Known defect (measured 2026-12-01): one boundary vertex folds inward by ~4% of the
-    // diagonal near x = +1.3 and 0.9% of the area is flipped next to it; the target->source
-    // Hausdorff is 3.4% there. The bound below only guards against getting worse.
+    // Known defect (measured 2026-12-01, again 2026-12-02): one boundary vertex folds inward by
+    // ~4% of the diagonal near x = +1.3 and 0.8-0.9% of the area is flipped next to it; the
+    // target->source Hausdorff is 3.4% there. The bound below only guards against getting worse.
+    // With the backward rounds 36 of 41 boundary vertices are within 0.2% (38 before).
     assert!(flipped < 0.02, "flipped {flipped}");
 }
 

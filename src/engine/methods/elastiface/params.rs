@@ -53,9 +53,29 @@ pub struct ElastifaceParams {
     /// Default 3.
     #[schemars(range(min = 1, max = 20))]
     pub registration_iterations: usize,
-    /// Solves of the registration of the originals. Default 2.
+    /// Closest-point solves per stiffness level of the registration of the originals, after its
+    /// first solve on the carried points (`register`'s originals stage). Default 2.
     #[schemars(range(min = 1, max = 10))]
     pub original_iterations: usize,
+    /// Stiffness levels of the registration of the originals: bending 3, 1, 0.3, 0.1 for the
+    /// default 4, the last ones of that 1-3-10 series for fewer (1: the paper's 0.1 alone).
+    /// Default 4 (README "elastiface" has the sweep).
+    #[schemars(range(min = 1, max = 6))]
+    pub original_stiffness_levels: usize,
+    /// Weight of the backward fitting term of the registration of the originals (each target
+    /// vertex pulls its closest point on the fitted source; not in the paper). Default 300, the
+    /// forward fitting weight; 0 with `original_stiffness_levels = 1` and
+    /// `original_iterations = 1` is the paper's stage.
+    #[schemars(range(min = 0, max = 100000))]
+    pub backward_weight: f64,
+    /// A backward pair is dropped when its distance exceeds this fraction of the target's
+    /// diagonal. Default 0.1.
+    #[schemars(range(max = 1), extend("exclusiveMinimum" = 0))]
+    pub backward_max_distance: f64,
+    /// A backward pair is dropped when the cosine between the source triangle's normal and the
+    /// target vertex's normal is below this. Default 0.5.
+    #[schemars(range(min = -1, max = 1))]
+    pub backward_min_cos: f64,
     /// The target's bounding-box diagonal is scaled to this many units before solving (and the
     /// result scaled back), so that the weights mean what they mean in the paper whatever the
     /// model units. Default 50.
@@ -87,6 +107,10 @@ impl Default for ElastifaceParams {
             fairing_iterations: 5,
             registration_iterations: 3,
             original_iterations: 2,
+            original_stiffness_levels: 4,
+            backward_weight: 300.0,
+            backward_max_distance: 0.1,
+            backward_min_cos: 0.5,
             reference_diagonal: 50.0,
             output: OutputMode::Positions,
             blend: None,

@@ -16,7 +16,7 @@
 //! all (the paper: "about 10"; its §6 timing mentions five). Originals: `μ2 = 300`,
 //! `μ1 = μ3 = 0.1`, bending relative to the original source, the first solve using the base
 //! stage's last closest points carried to the original target as (triangle, barycentric), each
-//! further one (default 2 solves in all) recomputing them on the original target.
+//! further one recomputing them on the original target ([`super::originals`]).
 
 use rayon::prelude::*;
 
@@ -67,12 +67,20 @@ impl FitTarget<'_> {
 
 /// The registration system of one source mesh: pattern and symbolic analysis.
 pub struct Registration<'a> {
-    lap: &'a LapRows,
-    faces: &'a [[u32; 3]],
-    pairs: &'a [RefPair],
+    pub(super) lap: &'a LapRows,
+    pub(super) faces: &'a [[u32; 3]],
+    pub(super) pairs: &'a [RefPair],
     pattern: Arc<SparsityPattern>,
     symbolic: SymbolicCholesky,
     k_total: f64,
+}
+
+/// Extra terms of a factorisation (the originals stage's backward pairs,
+/// [`super::originals`]): weighted rows `w ‖row · x − t‖²`.
+#[derive(Default)]
+pub(super) struct Extra<'e> {
+    /// Barycentric rows with their weights and the points `t` they are pulled to.
+    pub rows: &'e [(RefRow, f64, [f64; 3])],
 }
 
 /// The weights of one stiffness level.
@@ -130,10 +138,23 @@ impl<'a> Registration<'a> {
     }
 
     fn factor(&self, areas: &[f64], mu: Mu) -> Result<NumericCholesky, MethodError> {
+        self.factor_extra(areas, mu, &Extra::default())
+    }
+
+    /// [`Self::factor`] with extra terms.
+    pub(super) fn factor_extra(
+        &self,
+        areas: &[f64],
+        mu: Mu,
+        extra: &Extra<'_>,
+    ) -> Result<NumericCholesky, MethodError> {
         let n = self.lap.len();
         let total: f64 = areas.iter().sum();
         let mut v = Values::zeros(&self.pattern);
         v.add_bilaplacian(self.lap, areas, 0, mu.bend / total);
+        for (row, w, _) in extra.rows {
+            v.add_outer(&row.entries(0), *w);
+        }
         for i in 0..n {
             v.add(i, i, mu.fit / n as f64);
         }
@@ -153,6 +174,18 @@ impl<'a> Registration<'a> {
         target_refs: &[[f64; 3]],
         mu: Mu,
     ) -> Vec<Vec<f64>> {
+        self.fixed_rhs_extra(rest, areas, target_refs, mu, &Extra::default())
+    }
+
+    /// [`Self::fixed_rhs`] with the extra terms of [`Self::factor_extra`].
+    pub(super) fn fixed_rhs_extra(
+        &self,
+        rest: &[[f64; 3]],
+        areas: &[f64],
+        target_refs: &[[f64; 3]],
+        mu: Mu,
+        extra: &Extra<'_>,
+    ) -> Vec<Vec<f64>> {
         let n = self.lap.len();
         let total: f64 = areas.iter().sum();
         let inv: Vec<f64> = areas.iter().map(|a| mu.bend / total / a).collect();
@@ -168,11 +201,16 @@ impl<'a> Registration<'a> {
                 (0..3).for_each(|d| rhs[d][i] += w * a * r[d]);
             }
         }
+        for (row, w, r) in extra.rows {
+            for (i, a) in row.entries(0) {
+                (0..3).for_each(|d| rhs[d][i] += w * a * r[d]);
+            }
+        }
         debug_assert_eq!(rhs[0].len(), n);
         rhs
     }
 
-    fn solve(
+    pub(super) fn solve(
         &self,
         factor: &NumericCholesky,
         fixed: &[Vec<f64>],
@@ -234,51 +272,10 @@ impl<'a> Registration<'a> {
         report.rms_fit = rms(&x, &target.points(&closest));
         Ok((x, closest, report))
     }
-
-    /// §3.3, last paragraph: the originals. `rest` is the original source, `carried` the base
-    /// stage's closest points as (face, barycentric) on the original target.
-    ///
-    /// # Errors
-    /// [`MethodError::Internal`], [`MethodError::Cancelled`].
-    pub fn originals(
-        &self,
-        rest: &[[f64; 3]],
-        target: &FitTarget<'_>,
-        carried: &Closest,
-        solves: usize,
-        control: &Control,
-    ) -> Result<(Vec<[f64; 3]>, StageReport), MethodError> {
-        let areas = voronoi_areas(rest, self.faces)?;
-        let target_refs: Vec<[f64; 3]> =
-            self.pairs.iter().map(|p| p.target.eval(target.x)).collect();
-        let mu = Mu {
-            bend: 0.1,
-            fit: 300.0,
-            refs: 0.1,
-        };
-        let work = control.stage("registration_originals", solves as u64)?;
-        let factor = self.factor(&areas, mu)?;
-        let fixed = self.fixed_rhs(rest, &areas, &target_refs, mu);
-        let mut report = StageReport {
-            factorisations: 1,
-            ..Default::default()
-        };
-        let mut c = target.points(carried);
-        let mut x = rest.to_vec();
-        for s in 0..solves {
-            if s > 0 {
-                c = target.points(&target.closest(&x));
-            }
-            x = self.solve(&factor, &fixed, &c, mu)?;
-            report.solves += 1;
-            work.tick(1)?;
-        }
-        report.rms_fit = rms(&x, &target.points(&target.closest(&x)));
-        Ok((x, report))
-    }
 }
 
-fn rms(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
+/// RMS distance between corresponding points.
+pub(super) fn rms(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
     let s: f64 = a
         .iter()
         .zip(b)
