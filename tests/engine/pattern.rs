@@ -5,7 +5,7 @@
 //! sheet (developable: flat clusters must map isometrically) and on a real mesh.
 
 use retex::engine::asset::constraints::Constraints;
-use retex::engine::methods::{Method, Registry};
+use retex::engine::methods::Registry;
 use serde_json::{json, Value};
 
 use crate::common::{assert_validator_clean, load_bytes, shared_asset};

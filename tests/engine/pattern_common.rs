@@ -10,7 +10,6 @@ use retex::engine::control::Control;
 use retex::engine::pipeline::{transfer, ImageInput, ModelInput, TransferInput, TransferOutput};
 use retex::engine::rng::SplitMix64;
 
-use crate::common::load_bytes;
 use crate::elastiface_common::{mesh_glb, texture_png, MeshData};
 
 /// A tileable colour pattern (integer frequencies), `size`², with structure at several scales.
@@ -236,6 +235,10 @@ pub fn measure(m: &UvMesh, image: &Image, px_per_world: f64) -> Measures {
             e1[0] * e2[1] - e1[1] * e2[0],
         ];
         let area = 0.5 * n.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if area < 1e-12 * l1 * l1 || area == 0.0 {
+            // A degenerate input triangle (e.g. at a UV sphere's pole) has no texture to judge.
+            continue;
+        }
         let nn = n.map(|c| c / (2.0 * area));
         let y = [
             nn[1] * x[2] - nn[2] * x[1],
