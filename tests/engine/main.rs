@@ -36,6 +36,7 @@ mod meshmatch_stripes;
 mod meshmatch_transfer;
 mod method_seam;
 mod multires_properties;
+mod pattern_fit;
 mod preview;
 mod project_transfer;
 mod ray_features;

@@ -22,6 +22,7 @@ pub mod elastiface;
 pub mod meshmatch;
 pub mod output;
 pub mod params;
+pub mod pattern;
 pub mod project;
 pub mod shared_params;
 
