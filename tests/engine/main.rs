@@ -38,6 +38,7 @@ mod meshmatch_transfer;
 mod method_seam;
 mod multires_properties;
 mod pattern;
+mod pattern_fit;
 mod preview;
 mod project_transfer;
 mod ray_features;

@@ -12,7 +12,7 @@
 //! 4. [`bands`] (§4.1): the textured neighbours' band triangles placed in the cluster's frame;
 //!    [`mask`] rasterises them (the mask I and its support J).
 //! 5. [`fit`] (§4.2, eq. 2): best placement over all orientations and offsets by FFT, on the
-//!    colour space and rotated copies of [`texture`].
+//!    colour space and rotated copies of [`texture`], with the 2-D FFTs of [`fft2`].
 //! 6. [`relax`] (§4.4): local relaxation of the cluster's shared border vertices.
 //! 7. [`uv_output`] (§4.3): TEXCOORD_0 per corner, vertices split only where patches meet, the
 //!    image passed through.
