@@ -67,6 +67,16 @@ pub fn folded_sheet(n: usize, angle: f64) -> MeshData {
 
 /// Runs `pattern` on a mesh with a PNG pattern.
 pub fn run_pattern(mesh: &MeshData, png: &[u8], params: serde_json::Value) -> TransferOutput {
+    run_pattern_seeded(mesh, png, params, 3)
+}
+
+/// [`run_pattern`] with a job seed.
+pub fn run_pattern_seeded(
+    mesh: &MeshData,
+    png: &[u8],
+    params: serde_json::Value,
+    seed: u64,
+) -> TransferOutput {
     let target = mesh_glb(
         &MeshData {
             uvs: None,
@@ -75,12 +85,17 @@ pub fn run_pattern(mesh: &MeshData, png: &[u8], params: serde_json::Value) -> Tr
         None,
         1.0,
     );
-    run_pattern_glb(&target, png, params)
+    run_pattern_glb(&target, png, params, seed)
 }
 
 /// Runs `pattern` on a GLB.
-pub fn run_pattern_glb(target: &[u8], png: &[u8], params: serde_json::Value) -> TransferOutput {
-    let c = serde_json::json!({"version": 1, "method": "pattern", "seed": 3, "params": params});
+pub fn run_pattern_glb(
+    target: &[u8],
+    png: &[u8],
+    params: serde_json::Value,
+    seed: u64,
+) -> TransferOutput {
+    let c = serde_json::json!({"version": 1, "method": "pattern", "seed": seed, "params": params});
     let constraints = Constraints::from_json(c.to_string().as_bytes()).unwrap();
     let mut tb = BlobSet::new();
     tb.insert("target.glb", target.to_vec());
@@ -171,7 +186,12 @@ impl Image {
             let j = (j as i64).rem_euclid(self.h as i64) as usize;
             self.px[j * self.w + i]
         };
-        let (a, b, c, d) = (at(x0, y0), at(x0 + 1.0, y0), at(x0, y0 + 1.0), at(x0 + 1.0, y0 + 1.0));
+        let (a, b, c, d) = (
+            at(x0, y0),
+            at(x0 + 1.0, y0),
+            at(x0, y0 + 1.0),
+            at(x0 + 1.0, y0 + 1.0),
+        );
         [0, 1, 2].map(|k| {
             (a[k] * (1.0 - fx) + b[k] * fx) * (1.0 - fy) + (c[k] * (1.0 - fx) + d[k] * fx) * fy
         })
@@ -184,7 +204,9 @@ impl Image {
         for _ in 0..20_000 {
             let a = self.sample([rng.unit_f64(), rng.unit_f64()]);
             let b = self.sample([rng.unit_f64(), rng.unit_f64()]);
-            s += (0..3).map(|k| f64::from((a[k] - b[k]).powi(2))).sum::<f64>();
+            s += (0..3)
+                .map(|k| f64::from((a[k] - b[k]).powi(2)))
+                .sum::<f64>();
         }
         s / 20_000.0
     }
@@ -327,10 +349,14 @@ fn seam_error(m: &UvMesh, image: &Image) -> (f64, f64) {
         }
         seam_len += len;
         for t in [0.25, 0.5, 0.75] {
-            let lerp = |a: [f64; 2], b: [f64; 2]| [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])];
+            let lerp =
+                |a: [f64; 2], b: [f64; 2]| [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])];
             let c1 = image.sample(lerp(fa.1, fb.1));
             let c2 = image.sample(lerp(ga.1, gb.1));
-            sum += len / 3.0 * (0..3).map(|k| f64::from((c1[k] - c2[k]).powi(2))).sum::<f64>();
+            sum += len / 3.0
+                * (0..3)
+                    .map(|k| f64::from((c1[k] - c2[k]).powi(2)))
+                    .sum::<f64>();
         }
     }
     let seam = if seam_len > 0.0 {
@@ -396,7 +422,9 @@ pub fn cube(mesh: &MeshData, scale: f64) -> UvMesh {
         .collect();
     let mut m = with_uvs(mesh, |p, f| {
         let n = normals[f];
-        let a = (0..3).max_by(|i, j| n[*i].abs().total_cmp(&n[*j].abs())).unwrap();
+        let a = (0..3)
+            .max_by(|i, j| n[*i].abs().total_cmp(&n[*j].abs()))
+            .unwrap();
         let s = n[a].signum();
         let (u, v) = match a {
             0 => (-s * p[2], p[1]),
@@ -408,7 +436,9 @@ pub fn cube(mesh: &MeshData, scale: f64) -> UvMesh {
     // One vertex id per (position, axis): seams where the axis changes.
     for (f, ids) in m.ids.iter_mut().enumerate() {
         let n = normals[f];
-        let a = (0..3).max_by(|i, j| n[*i].abs().total_cmp(&n[*j].abs())).unwrap() as u32;
+        let a = (0..3)
+            .max_by(|i, j| n[*i].abs().total_cmp(&n[*j].abs()))
+            .unwrap() as u32;
         let s = u32::from(n[a as usize] > 0.0);
         *ids = ids.map(|v| v * 6 + a * 2 + s);
     }

@@ -143,7 +143,11 @@ pub struct BandInput<'a> {
 
 /// The mask triangles of the current cluster (flattened as `flat`) from its textured
 /// neighbours across `edges`.
-pub fn band_triangles(input: &BandInput<'_>, flat: &Flat, edges: &[SharedEdge]) -> Vec<MaskTriangle> {
+pub fn band_triangles(
+    input: &BandInput<'_>,
+    flat: &Flat,
+    edges: &[SharedEdge],
+) -> Vec<MaskTriangle> {
     let mut out = Vec::new();
     for p in neighbour_patches(edges) {
         let patch = &input.patches[p as usize];

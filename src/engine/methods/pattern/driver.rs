@@ -21,9 +21,10 @@
 //! multiplied by the relaxation's error ratio (after / before) along the seams.
 //!
 //! Constants the paper does not publish: the relaxation radius, 0.1 × the square root of the
-//! cluster's area in pixels (it shrinks with the cluster, so per level), at most a quarter of
-//! the mean shared-edge length in pixels (larger moves flipped or stretched border triangles
-//! on a 2,208-face sphere: 10% of the area above anisotropy 2.2 with the area bound alone).
+//! cluster's area in pixels (it shrinks with the cluster, so per level), at most 0.2 × the
+//! shortest shared edge in pixels (with the area bound alone, border moves stretched the
+//! border triangles of a 2,208-face sphere: 10% of the area above anisotropy 2.2; with a
+//! quarter of the mean shared edge, 10% above 1.4).
 
 use std::collections::BinaryHeap;
 
@@ -46,22 +47,26 @@ const RANDOM_PAIRS: usize = 4096;
 /// Relaxation radius as a fraction of the square root of the cluster's area in pixels.
 const RELAX_RADIUS: f32 = 0.1;
 
-/// ... and at most this fraction of the mean length of the shared border edges in pixels, so a
-/// move cannot stretch a border triangle beyond recognition.
-const RELAX_EDGE: f32 = 0.25;
+/// ... and at most this fraction of the shortest shared border edge in pixels, so a move cannot
+/// stretch a border triangle beyond recognition.
+const RELAX_EDGE: f32 = 0.2;
 
-/// Mean length of the shared edges in pattern pixels.
-fn mean_edge_px(surface: &Surface, edges: &[super::bands::SharedEdge], ppw: f64) -> f32 {
-    let mut sum = 0.0f64;
+/// Shortest shared edge in pattern pixels.
+fn min_edge_px(surface: &Surface, edges: &[super::bands::SharedEdge], ppw: f64) -> f32 {
+    let mut min = f64::MAX;
     for e in edges {
         let a = surface.positions[e.vertices[0] as usize];
         let b = surface.positions[e.vertices[1] as usize];
-        sum += (0..3)
+        let l = (0..3)
             .map(|k| f64::from(a[k] - b[k]).powi(2))
             .sum::<f64>()
             .sqrt();
+        min = min.min(l);
     }
-    (sum / edges.len().max(1) as f64 * ppw) as f32
+    if edges.is_empty() {
+        return 0.0;
+    }
+    (min * ppw) as f32
 }
 
 /// What the driver reads.
@@ -103,7 +108,9 @@ pub fn random_pair_error(texture: &PatternTexture, seed: u64) -> f32 {
     for _ in 0..RANDOM_PAIRS {
         let a = texture.sample([rng.unit_f32() * w, rng.unit_f32() * h]);
         let b = texture.sample([rng.unit_f32() * w, rng.unit_f32() * h]);
-        sum += (0..3).map(|k| f64::from((a[k] - b[k]).powi(2))).sum::<f64>();
+        sum += (0..3)
+            .map(|k| f64::from((a[k] - b[k]).powi(2)))
+            .sum::<f64>();
     }
     ((sum / RANDOM_PAIRS as f64) as f32).max(1e-12)
 }
@@ -440,7 +447,8 @@ fn accept(st: &mut State<'_>, c: u32, flat: &Flat, px: Vec<[f32; 2]>, fit_error:
         st.face_patch[*f as usize] = id;
     }
     st.component_patches[cl.component as usize] += 1;
-    st.stats.record_patch(cl.faces.len(), flat.e_flat, fit_error);
+    st.stats
+        .record_patch(cl.faces.len(), flat.e_flat, fit_error);
     st.patches.push(Patch {
         cluster: c,
         vertices: flat.vertices.clone(),
@@ -506,7 +514,7 @@ fn try_fit(st: &mut State<'_>, c: u32, flat: &Flat, ls: &mut LevelStats) -> bool
         .sum::<f64>()
         * ppw
         * ppw;
-    let edge_px = mean_edge_px(st.input.surface, &edges, ppw);
+    let edge_px = min_edge_px(st.input.surface, &edges, ppw);
     let problem = RelaxProblem {
         start_px,
         radius_px: (RELAX_RADIUS * area_px.sqrt() as f32).min(RELAX_EDGE * edge_px),
@@ -522,7 +530,8 @@ fn try_fit(st: &mut State<'_>, c: u32, flat: &Flat, ls: &mut LevelStats) -> bool
     } else {
         1.0
     };
-    st.stats.record_relax(relaxed.error_before, relaxed.error_after);
+    st.stats
+        .record_relax(relaxed.error_before, relaxed.error_after);
     let error = fit.error / st.random_error * ratio;
     if error > st.input.params.fit_threshold && !leaf {
         ls.fit_rejected += 1;

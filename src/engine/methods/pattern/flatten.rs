@@ -142,8 +142,14 @@ fn pins(surface: &Surface, vertices: &[u32]) -> (usize, usize) {
         let p = surface.positions[vertices[from] as usize];
         (0..vertices.len())
             .max_by(|a, b| {
-                let da = dot(sub(surface.positions[vertices[*a] as usize], p), sub(surface.positions[vertices[*a] as usize], p));
-                let db = dot(sub(surface.positions[vertices[*b] as usize], p), sub(surface.positions[vertices[*b] as usize], p));
+                let da = dot(
+                    sub(surface.positions[vertices[*a] as usize], p),
+                    sub(surface.positions[vertices[*a] as usize], p),
+                );
+                let db = dot(
+                    sub(surface.positions[vertices[*b] as usize], p),
+                    sub(surface.positions[vertices[*b] as usize], p),
+                );
                 da.total_cmp(&db)
             })
             .unwrap_or(0)
@@ -161,8 +167,14 @@ fn lscm(surface: &Surface, faces: &[u32], vertices: &[u32]) -> Option<Vec<[f64; 
         return None;
     }
     let d = dot(
-        sub(surface.positions[vertices[pa] as usize], surface.positions[vertices[pb] as usize]),
-        sub(surface.positions[vertices[pa] as usize], surface.positions[vertices[pb] as usize]),
+        sub(
+            surface.positions[vertices[pa] as usize],
+            surface.positions[vertices[pb] as usize],
+        ),
+        sub(
+            surface.positions[vertices[pa] as usize],
+            surface.positions[vertices[pb] as usize],
+        ),
     )
     .sqrt();
     // Unknowns: u_i at 2i, v_i at 2i + 1; pinned ones carry a value instead.
@@ -190,7 +202,10 @@ fn lscm(surface: &Surface, faces: &[u32], vertices: &[u32]) -> Option<Vec<[f64; 
         let w = area.sqrt();
         let mut g = [[0.0f64; 2]; 3];
         for j in 0..3 {
-            let e = [q[(j + 2) % 3][0] - q[(j + 1) % 3][0], q[(j + 2) % 3][1] - q[(j + 1) % 3][1]];
+            let e = [
+                q[(j + 2) % 3][0] - q[(j + 1) % 3][0],
+                q[(j + 2) % 3][1] - q[(j + 1) % 3][1],
+            ];
             g[j] = [-e[1] / (2.0 * area), e[0] / (2.0 * area)];
         }
         for c in 0..2 {

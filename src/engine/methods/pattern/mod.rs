@@ -88,7 +88,13 @@ impl Method for Pattern {
         let pattern = input.pattern.ok_or_else(|| {
             MethodError::Internal("the pattern method ran without a pattern image".into())
         })?;
-        let (edits, report) = run(input.target, pattern, &params, input.constraints.seed, control)?;
+        let (edits, report) = run(
+            input.target,
+            pattern,
+            &params,
+            input.constraints.seed,
+            control,
+        )?;
         let mut out = MethodOutput::target(edits, &report);
         out.warnings = report.warnings;
         Ok(out)

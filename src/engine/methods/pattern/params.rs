@@ -18,12 +18,13 @@ pub const DEFAULT_SCALE_FRACTION: f32 = 0.25;
 
 /// A triangle of the target: index into the asset's primitives (in the order of the glTF meshes
 /// and their primitives) and the triangle within that primitive.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
-#[serde(deny_unknown_fields)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(default, deny_unknown_fields)]
 pub struct FaceRef {
     /// Index into the target's primitives (glTF meshes in order, then their primitives).
+    /// Default 0.
     pub primitive: usize,
-    /// Triangle of that primitive (after strip/fan conversion).
+    /// Triangle of that primitive (after strip/fan conversion). Default 0.
     pub triangle: usize,
 }
 

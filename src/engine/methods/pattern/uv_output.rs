@@ -19,7 +19,9 @@ use std::collections::HashMap;
 use super::bands::Patch;
 use super::hierarchy::NONE;
 use super::texture::PatternTexture;
-use crate::engine::asset::edits::{Edit, EncodedImage, PrimitiveGeometry, TextureSlot, TextureWrap};
+use crate::engine::asset::edits::{
+    Edit, EncodedImage, PrimitiveGeometry, TextureSlot, TextureWrap,
+};
 use crate::engine::asset::Asset;
 use crate::engine::mesh::Surface;
 use crate::engine::methods::PatternImage;
@@ -75,7 +77,9 @@ pub fn write_uvs(
             if patch == NONE {
                 return None;
             }
-            let k = surface.corners[f as usize].iter().position(|c| c.vertex == a)?;
+            let k = surface.corners[f as usize]
+                .iter()
+                .position(|c| c.vertex == a)?;
             let w = surface.faces[f as usize][k];
             let px = patches[patch as usize].px_of(w)?;
             Some((patch, [px[0] / size[0], px[1] / size[1]]))
@@ -192,9 +196,13 @@ pub fn seam_error(
             };
             let pa3 = surface.positions[a as usize];
             let pb3 = surface.positions[b as usize];
-            let len = (0..3).map(|k| (pa3[k] - pb3[k]).powi(2)).sum::<f32>().sqrt();
+            let len = (0..3)
+                .map(|k| (pa3[k] - pb3[k]).powi(2))
+                .sum::<f32>()
+                .sqrt();
             for t in [0.25f32, 0.5, 0.75] {
-                let lerp = |p: [f32; 2], q: [f32; 2]| [p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1])];
+                let lerp =
+                    |p: [f32; 2], q: [f32; 2]| [p[0] + t * (q[0] - p[0]), p[1] + t * (q[1] - p[1])];
                 let ca = texture.sample(lerp(a0, a1));
                 let cb = texture.sample(lerp(b0, b1));
                 let d: f32 = (0..3).map(|k| (ca[k] - cb[k]).powi(2)).sum();
