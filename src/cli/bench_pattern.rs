@@ -47,12 +47,12 @@ fn pattern_png() -> Vec<u8> {
 const CASES: [(&str, &str, &str); 2] = [
     (
         "skull, low resolution (10,312 faces, genus 2)",
-        "perf_skull_odedstein/skull_low_resolution.obj",
+        "perf_skull_odedstein/skull_low_resolution_derived.glb",
         "under 3 s",
     ),
     (
         "hammer scan (60,160 faces)",
-        "perf_hammer_scan_odedstein/hammer.obj",
+        "perf_hammer_scan_odedstein/hammer_derived.glb",
         "34k faces under 10 s",
     ),
 ];

@@ -403,6 +403,11 @@ pub fn planar(mesh: &MeshData, scale: f64) -> UvMesh {
     with_uvs(mesh, |p, _| [p[0] / scale, -p[1] / scale])
 }
 
+/// Planar projection onto x / z (along y) at `scale` world units per image width.
+pub fn planar_xz(mesh: &MeshData, scale: f64) -> UvMesh {
+    with_uvs(mesh, |p, _| [p[0] / scale, p[2] / scale])
+}
+
 /// Cube projection: each face projected along its dominant normal axis (a seam where that
 /// axis changes), oriented so front faces are not mirrored.
 pub fn cube(mesh: &MeshData, scale: f64) -> UvMesh {
