@@ -507,12 +507,17 @@ fn planted_placements_are_recovered_on_shared_textures() {
         for trial in 0..5 {
             let (offset, same_k, fit_error, true_error, random_error) =
                 plant_and_fit(&texture, &mut rng, 48.0, 10.0, &[0, 3]);
+            println!(
+                "{relative} trial {trial}: off by {offset:.2} px, fit error {fit_error:.5}, random {random_error:.5}"
+            );
             assert!(same_k, "{relative} trial {trial}: wrong orientation");
             assert!(offset < 1.0, "{relative} trial {trial}: off by {offset} px");
             assert!(true_error < 1e-6);
+            // These textures have detail at the texel scale, so the error at the best *integer*
+            // offset is not near 0 (measured 0.19 × a random placement on the wood, trial 0).
             assert!(
-                fit_error < 0.1 * random_error,
-                "{fit_error} vs {random_error}"
+                fit_error < 0.5 * random_error,
+                "{relative} trial {trial}: {fit_error} vs {random_error}"
             );
         }
     }
