@@ -13,6 +13,7 @@ mod common;
 mod common_geometry;
 mod elastiface_common;
 mod meshmatch_common;
+mod pattern_common;
 
 mod color_output;
 mod constraints_schema;
@@ -36,6 +37,8 @@ mod meshmatch_stripes;
 mod meshmatch_transfer;
 mod method_seam;
 mod multires_properties;
+mod pattern;
+mod pattern_fit;
 mod preview;
 mod project_transfer;
 mod ray_features;

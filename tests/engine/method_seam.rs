@@ -263,8 +263,14 @@ fn a_method_registered_in_a_test_runs_through_the_pipeline() {
         name: "p.jpg",
         bytes: &jpeg,
     });
-    // Not in the built-in registry: a clear error listing what is available.
-    match transfer(&input, &Control::new()) {
+    // An id the built-in registry lacks ("detail"; "pattern" is registered now): a clear error
+    // listing what is available.
+    let detail = Constraints::from_json(br#"{"version": 1, "method": "detail"}"#).unwrap();
+    let unregistered = TransferInput::new(target, detail).with_pattern(ImageInput {
+        name: "p.jpg",
+        bytes: &jpeg,
+    });
+    match transfer(&unregistered, &Control::new()) {
         Err(e @ TransferError::MethodNotImplemented { .. }) => {
             assert!(
                 e.to_string().contains("available: project, meshmatch"),

@@ -30,7 +30,7 @@ fn unknown_methods_and_bad_params_are_422_at_submission() {
             constraints(c),
         ]
     };
-    let p = submit(base, &pair(r#"{"version": 1, "method": "pattern"}"#), &[]).problem(422);
+    let p = submit(base, &pair(r#"{"version": 1, "method": "detail"}"#), &[]).problem(422);
     assert_eq!(p["type"], "/problems/method-not-implemented", "{p}");
     assert_eq!(p["field"], "constraints.method", "{p}");
     assert!(

@@ -22,6 +22,7 @@ pub mod elastiface;
 pub mod meshmatch;
 pub mod output;
 pub mod params;
+pub mod pattern;
 pub mod project;
 pub mod shared_params;
 
@@ -61,6 +62,7 @@ impl Registry {
                 &meshmatch::MeshMatch,
                 &elastiface::Elastiface,
                 &correlation::Correlation,
+                &pattern::Pattern,
             ],
         }
     }

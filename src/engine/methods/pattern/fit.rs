@@ -1,0 +1,399 @@
+//! The best placement of a mask over the pattern by FFT (Soler, Cani & Angelidis 2002, §4.2,
+//! eq. 2).
+//!
+//! For a placement `P(f) = R(α) f + t` (frame pixels → pattern pixels) the error of the mask is
+//! `E = Σ J (I − T(P f))² = Σ J I² − 2 Σ J I · T(P f) + Σ J T²(P f)`, summed over the colour
+//! channels. For a fixed rotation the two last sums are correlations over `t`, computed for every
+//! integer offset at once by FFT. With `(f ⋆ g)(d) = Σ_x f(x) g(x + d)` the correlation is
+//! `F⁻¹(conj(F f) · F g)`: the conjugate goes on the *mask's* transform. The formula as printed in
+//! the paper conjugates the pattern's, which returns the match at `−d` (a planted-offset test in
+//! `tests/engine/pattern_fit.rs` pins the sign).
+//!
+//! **Rotations.** The orientations are `α_k = 2πk/n + φ`, `n` = [`PatternTexture::orientations`].
+//! The paper draws the mask at a random rotation `φ` so that the fit does not return the trivial
+//! continuation of a single textured neighbour; `best_fit` has no RNG argument, so `φ ∈ [0, 2π/n)`
+//! is drawn from a hash of the mask's contents (deterministic for a given input).
+//! [`best_fit_with_rotation`] takes `φ` explicitly. Per orientation the mask cells `f` are rotated
+//! to `q = R(α_k) f` and *splatted* bilinearly into a grid of the pattern's size (wrapping
+//! around the torus for a toroidal pattern; this replaces the paper's rotated copies of T, see
+//! `texture.rs`). Bilinear splatting is the adjoint of bilinear sampling, so the FFT evaluates
+//! exactly `Σ J (I² − 2 I · T̃(q + t) + T²̃(q + t))` with `~` a bilinear read (`T²̃` interpolates
+//! `|T|²`, which differs from `|T̃|²` only between texels).
+//!
+//! **Offsets.** Integer `t` per orientation; the minimum is refined to sub-pixel precision by a
+//! parabola through its two neighbours on each axis (clamped to ±0.5 px, only where both
+//! neighbours are valid). Non-toroidal patterns: an offset is valid only if every splatted mask
+//! cell and every corner of the rotated patch bounding box stays inside the image; an orientation
+//! with no valid offset is skipped, and no valid offset at all gives `None`.
+//!
+//! **Normalisation.** `Fit::error` is `E / Σ J` (the mean squared colour-space error per mask
+//! pixel), so thresholds do not depend on the mask's size.
+
+use rayon::prelude::*;
+use realfft::num_complex::Complex32;
+
+use super::mask::Mask;
+use super::texture::PatternTexture;
+use crate::engine::rng;
+
+/// A rigid map of frame pixels into pattern pixels: `pattern_px = R(rotation) · frame_px + t`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Placement {
+    /// Counter-clockwise in the pixel axes (x right, y down), radians.
+    pub rotation: f32,
+    /// Translation in pattern pixels.
+    pub translation_px: [f32; 2],
+}
+
+impl Placement {
+    /// `R(rotation) · frame_px + translation_px`.
+    pub fn apply(&self, frame_px: [f32; 2]) -> [f32; 2] {
+        let [x, y] = rotate(self.rotation, frame_px);
+        [x + self.translation_px[0], y + self.translation_px[1]]
+    }
+}
+
+/// The result of [`best_fit`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Fit {
+    /// The best placement found.
+    pub placement: Placement,
+    /// `E / Σ J` (mean squared colour error per mask pixel) at the best integer offset.
+    pub error: f32,
+    /// `k` of the orientation `α_k = 2πk/n + φ` the placement uses.
+    pub orientation_index: usize,
+}
+
+/// The error of every integer offset for one rotation.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ErrorImage {
+    /// The rotation of the mask.
+    pub rotation: f32,
+    /// Grid size (the pattern's).
+    pub width: usize,
+    /// Grid size (the pattern's).
+    pub height: usize,
+    /// Cell `d` of the grid is the placement with translation `d − shift`.
+    pub shift: [i64; 2],
+    /// Row-major `E / Σ J`; `f32::INFINITY` where the offset is not valid.
+    pub values: Vec<f32>,
+}
+
+impl ErrorImage {
+    /// The placement of grid cell `(dx, dy)`.
+    pub fn placement(&self, dx: usize, dy: usize) -> Placement {
+        Placement {
+            rotation: self.rotation,
+            translation_px: [
+                (dx as i64 - self.shift[0]) as f32,
+                (dy as i64 - self.shift[1]) as f32,
+            ],
+        }
+    }
+}
+
+/// `R(angle) · p` in pixel axes.
+pub fn rotate(angle: f32, p: [f32; 2]) -> [f32; 2] {
+    let (s, c) = angle.sin_cos();
+    [c * p[0] - s * p[1], s * p[0] + c * p[1]]
+}
+
+/// Best placement of the mask over all orientations and offsets (eq. 2 by FFT), the mask drawn
+/// at a rotation `φ` hashed from its contents (module doc). `patch_bbox_px` = the current
+/// cluster's frame-pixel bounding box `[min, max]`: for a non-toroidal pattern, the patch plus
+/// mask must stay inside the image (`None` if they cannot). A mask with no support → `None` (the
+/// caller places the patch like the first one).
+pub fn best_fit(
+    texture: &PatternTexture,
+    mask: &Mask,
+    patch_bbox_px: [[f32; 2]; 2],
+) -> Option<Fit> {
+    let step = std::f32::consts::TAU / texture.orientations() as f32;
+    let phi = rng::hash_unit(mask_hash(mask), 0) as f32 * step;
+    best_fit_with_rotation(texture, mask, patch_bbox_px, phi)
+}
+
+/// [`best_fit`] with the mask rotation `φ` given (orientations `α_k = 2πk/n + φ`).
+pub fn best_fit_with_rotation(
+    texture: &PatternTexture,
+    mask: &Mask,
+    patch_bbox_px: [[f32; 2]; 2],
+    phi: f32,
+) -> Option<Fit> {
+    let cells = support_cells(mask);
+    if cells.is_empty() || !phi.is_finite() {
+        return None;
+    }
+    let n = texture.orientations();
+    let results: Vec<Option<(f32, Placement)>> = (0..n)
+        .into_par_iter()
+        .map(|k| {
+            let alpha = std::f32::consts::TAU * k as f32 / n as f32 + phi;
+            let image = error_image_of(texture, &cells, patch_bbox_px, alpha)?;
+            minimum(&image, texture.toroidal())
+        })
+        .collect();
+    let mut best: Option<Fit> = None;
+    for (k, result) in results.into_iter().enumerate() {
+        if let Some((error, placement)) = result {
+            if best.is_none_or(|b| error < b.error) {
+                best = Some(Fit {
+                    placement,
+                    error,
+                    orientation_index: k,
+                });
+            }
+        }
+    }
+    best
+}
+
+/// `E / Σ J` for every integer offset at one rotation (`None` if the mask has no support or,
+/// for a non-toroidal pattern, no offset is valid).
+pub fn error_image(
+    texture: &PatternTexture,
+    mask: &Mask,
+    patch_bbox_px: [[f32; 2]; 2],
+    rotation: f32,
+) -> Option<ErrorImage> {
+    error_image_of(texture, &support_cells(mask), patch_bbox_px, rotation)
+}
+
+/// The mean squared colour error `Σ J |I − T(P f)|² / Σ J` of a placement, by direct
+/// evaluation with bilinear reads (`None` for a mask with no support).
+pub fn placement_error(
+    texture: &PatternTexture,
+    mask: &Mask,
+    placement: &Placement,
+) -> Option<f32> {
+    let cells = support_cells(mask);
+    let total: f32 = cells.iter().map(|c| c.weight).sum();
+    if total <= 0.0 {
+        return None;
+    }
+    let e: f32 = cells
+        .iter()
+        .map(|c| {
+            let t = texture.sample(placement.apply(c.frame));
+            c.weight * (0..3).map(|ch| (c.colour[ch] - t[ch]).powi(2)).sum::<f32>()
+        })
+        .sum();
+    Some(e / total)
+}
+
+/// A mask cell with positive support.
+struct Cell {
+    frame: [f32; 2],
+    colour: [f32; 3],
+    weight: f32,
+}
+
+fn support_cells(mask: &Mask) -> Vec<Cell> {
+    let mut cells = Vec::new();
+    if mask.colour.len() != mask.width * mask.height || mask.support.len() != mask.colour.len() {
+        return cells;
+    }
+    for j in 0..mask.height {
+        for i in 0..mask.width {
+            let index = j * mask.width + i;
+            let (w, c) = (mask.support[index], mask.colour[index]);
+            if w > 0.0 && w.is_finite() && c.iter().all(|v| v.is_finite()) {
+                cells.push(Cell {
+                    frame: mask.cell_centre(i, j),
+                    colour: c,
+                    weight: w.min(1.0),
+                });
+            }
+        }
+    }
+    cells
+}
+
+/// A deterministic hash of a mask's geometry and contents (the seed of its rotation φ).
+fn mask_hash(mask: &Mask) -> u64 {
+    let mut h = rng::mix(
+        mask.width as u64,
+        mask.height as u64,
+        ((mask.origin[0].to_bits() as u64) << 32) | mask.origin[1].to_bits() as u64,
+    );
+    for (i, (c, s)) in mask.colour.iter().zip(&mask.support).enumerate() {
+        if *s > 0.0 {
+            let bits = (c[0].to_bits() as u64) ^ ((c[2].to_bits() as u64) << 32);
+            h = rng::mix(h, i as u64, bits ^ s.to_bits() as u64);
+        }
+    }
+    h
+}
+
+/// The valid integer range `[lo, hi]` of grid offsets `d` on one axis, or `None`.
+type Range = Option<(i64, i64)>;
+
+fn error_image_of(
+    texture: &PatternTexture,
+    cells: &[Cell],
+    patch_bbox_px: [[f32; 2]; 2],
+    alpha: f32,
+) -> Option<ErrorImage> {
+    if cells.is_empty() {
+        return None;
+    }
+    let size = [texture.width() as usize, texture.height() as usize];
+    let rotated: Vec<[f32; 2]> = cells.iter().map(|c| rotate(alpha, c.frame)).collect();
+    // Grid coordinate of a rotated cell: u = q − 0.5 − shift, with shift making u ≥ 0.
+    let mut shift = [0i64; 2];
+    let mut max_cell = [0i64; 2];
+    for a in 0..2 {
+        let lo = rotated.iter().map(|q| q[a]).fold(f32::INFINITY, f32::min);
+        let hi = rotated
+            .iter()
+            .map(|q| q[a])
+            .fold(f32::NEG_INFINITY, f32::max);
+        shift[a] = (lo - 0.5).floor() as i64;
+        max_cell[a] = (hi - 0.5).floor() as i64 - shift[a] + 1;
+    }
+    let ranges: [Range; 2] = if texture.toroidal() {
+        [Some((0, size[0] as i64 - 1)), Some((0, size[1] as i64 - 1))]
+    } else {
+        let corners = [
+            patch_bbox_px[0],
+            [patch_bbox_px[1][0], patch_bbox_px[0][1]],
+            [patch_bbox_px[0][0], patch_bbox_px[1][1]],
+            patch_bbox_px[1],
+        ]
+        .map(|c| rotate(alpha, c));
+        [0, 1].map(|a| clamped_range(&corners, a, size[a], shift[a], max_cell[a]))
+    };
+    let (xlo, xhi) = ranges[0]?;
+    let (ylo, yhi) = ranges[1]?;
+    let correlation = correlate(texture, cells, &rotated, shift);
+    let total: f32 = cells.iter().map(|c| c.weight).sum();
+    let sum_i2: f32 = cells
+        .iter()
+        .map(|c| c.weight * c.colour.iter().map(|v| v * v).sum::<f32>())
+        .sum();
+    let mut values = vec![f32::INFINITY; size[0] * size[1]];
+    for dy in ylo..=yhi {
+        for dx in xlo..=xhi {
+            let index = dy as usize * size[0] + dx as usize;
+            values[index] = ((sum_i2 + correlation[index]) / total).max(0.0);
+        }
+    }
+    Some(ErrorImage {
+        rotation: alpha,
+        width: size[0],
+        height: size[1],
+        shift,
+        values,
+    })
+}
+
+/// Non-toroidal offsets `d` on one axis that keep the splatted mask (grid cells `0..=max_cell`)
+/// and the rotated patch corners (at `corner + d − shift`) inside `[0, n]`.
+fn clamped_range(
+    corners: &[[f32; 2]; 4],
+    axis: usize,
+    n: usize,
+    shift: i64,
+    max_cell: i64,
+) -> Range {
+    let n_i = n as i64;
+    let lo_c = corners
+        .iter()
+        .map(|c| c[axis])
+        .fold(f32::INFINITY, f32::min);
+    let hi_c = corners
+        .iter()
+        .map(|c| c[axis])
+        .fold(f32::NEG_INFINITY, f32::max);
+    if !lo_c.is_finite() || !hi_c.is_finite() {
+        return None;
+    }
+    let lo = 0i64.max((shift as f32 - lo_c).ceil() as i64);
+    let hi = (n_i - 1 - max_cell).min((n as f32 + shift as f32 - hi_c).floor() as i64);
+    (lo <= hi).then_some((lo, hi))
+}
+
+/// `−2 Σ_c (G_Ic ⋆ T_c)(d) + (G_J ⋆ |T|²)(d)` for every grid offset `d`, with `G` the bilinear
+/// splats of `J·I_c` and `J` at `u = q − 0.5 − shift` (wrapped onto the pattern grid).
+fn correlate(
+    texture: &PatternTexture,
+    cells: &[Cell],
+    rotated: &[[f32; 2]],
+    shift: [i64; 2],
+) -> Vec<f32> {
+    let (w, h) = (texture.width() as i64, texture.height() as i64);
+    let mut grids = vec![vec![0.0f32; (w * h) as usize]; 4];
+    for (cell, q) in cells.iter().zip(rotated) {
+        let u = [q[0] - 0.5 - shift[0] as f32, q[1] - 0.5 - shift[1] as f32];
+        let base = [u[0].floor(), u[1].floor()];
+        let frac = [u[0] - base[0], u[1] - base[1]];
+        let (bx, by) = (base[0] as i64, base[1] as i64);
+        let values = [
+            cell.weight * cell.colour[0],
+            cell.weight * cell.colour[1],
+            cell.weight * cell.colour[2],
+            cell.weight,
+        ];
+        for (ox, oy, f) in [
+            (0, 0, (1.0 - frac[0]) * (1.0 - frac[1])),
+            (1, 0, frac[0] * (1.0 - frac[1])),
+            (0, 1, (1.0 - frac[0]) * frac[1]),
+            (1, 1, frac[0] * frac[1]),
+        ] {
+            let index = ((by + oy).rem_euclid(h) * w + (bx + ox).rem_euclid(w)) as usize;
+            for (grid, v) in grids.iter_mut().zip(values) {
+                grid[index] += f * v;
+            }
+        }
+    }
+    let fft = texture.fft();
+    let spectra = texture.spectra();
+    let mut combined = vec![Complex32::new(0.0, 0.0); fft.spectrum_len()];
+    for (c, grid) in grids.iter().enumerate() {
+        let factor = if c < 3 { -2.0 } else { 1.0 };
+        let g = fft.forward(grid);
+        for ((out, gv), tv) in combined.iter_mut().zip(&g).zip(&spectra[c]) {
+            *out += gv.conj() * tv * factor;
+        }
+    }
+    fft.inverse(&mut combined)
+}
+
+/// The smallest valid value, refined by parabolas; `(E / Σ J, placement)`.
+fn minimum(image: &ErrorImage, toroidal: bool) -> Option<(f32, Placement)> {
+    let (w, h) = (image.width, image.height);
+    let (index, &value) = image
+        .values
+        .iter()
+        .enumerate()
+        .filter(|(_, v)| v.is_finite())
+        .min_by(|a, b| a.1.total_cmp(b.1))?;
+    let (dx, dy) = (index % w, index / w);
+    let at = |x: i64, y: i64| -> f32 {
+        if toroidal {
+            image.values[(y.rem_euclid(h as i64) as usize) * w + x.rem_euclid(w as i64) as usize]
+        } else if x < 0 || y < 0 || x >= w as i64 || y >= h as i64 {
+            f32::INFINITY
+        } else {
+            image.values[y as usize * w + x as usize]
+        }
+    };
+    let (x, y) = (dx as i64, dy as i64);
+    let refine = |minus: f32, plus: f32| -> f32 {
+        let curvature = minus - 2.0 * value + plus;
+        if minus.is_finite() && plus.is_finite() && curvature > 0.0 {
+            (0.5 * (minus - plus) / curvature).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        }
+    };
+    let sub = [
+        refine(at(x - 1, y), at(x + 1, y)),
+        refine(at(x, y - 1), at(x, y + 1)),
+    ];
+    let mut placement = image.placement(dx, dy);
+    placement.translation_px[0] += sub[0];
+    placement.translation_px[1] += sub[1];
+    placement.rotation = placement.rotation.rem_euclid(std::f32::consts::TAU);
+    Some((value, placement))
+}
