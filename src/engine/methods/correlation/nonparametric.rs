@@ -138,6 +138,8 @@ fn fan_error(e: FanError) -> MethodError {
 }
 
 type Adjacency = (Vec<u32>, Vec<u32>);
+/// One level's source colour, source guidance and target guidance.
+type LevelFields<'a> = (&'a [[f32; 3]], &'a [[f32; 3]], &'a [[f32; 3]]);
 
 fn ring(adj: &Adjacency, v: usize) -> &[u32] {
     &adj.1[adj.0[v] as usize..adj.0[v + 1] as usize]
@@ -448,7 +450,7 @@ fn prepare<'a>(
     tgt: &SurfacePyramid,
     level: usize,
     allowed: Vec<bool>,
-    (src_col, src_gui, tgt_gui): (&[[f32; 3]], &[[f32; 3]], &[[f32; 3]]),
+    (src_col, src_gui, tgt_gui): LevelFields<'_>,
     scaling: &Scaling,
     settings: &NonparametricSettings,
     control: &Control,

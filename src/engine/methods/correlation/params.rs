@@ -222,7 +222,7 @@ impl CorrelationParams {
             }
         }
         let n = self.nonparametric.neighbourhood;
-        if n % 2 == 0 {
+        if n.is_multiple_of(2) {
             return Err(ConstraintsError::new(
                 "params.nonparametric.neighbourhood",
                 format!("{n} is outside the range odd numbers 3..=15"),
