@@ -1,5 +1,5 @@
 //! The parts of the `correlation` method (issue 11) on data with a known answer: params (the
-//! non-parametric variant refused), the 12-D features on a sphere, CCA against PCA on synthetic
+//! non-parametric variant's options checked), the 12-D features on a sphere, CCA against PCA on synthetic
 //! features whose colour is a known linear function of some of them, a grey and a constant
 //! source, and n-D histogram matching.
 
@@ -21,14 +21,39 @@ fn constraints(params: serde_json::Value) -> Constraints {
 }
 
 #[test]
-fn params_defaults_ranges_and_the_refused_nonparametric_variant() {
+fn params_defaults_ranges_and_the_nonparametric_options() {
     let p = CorrelationParams::from_constraints(&constraints(json!({}))).unwrap();
     assert_eq!((p.clusters, p.pyramid_levels, p.iterations), (50, 3, 3));
-    let e =
+    let p =
         CorrelationParams::from_constraints(&constraints(json!({"synthesis": "nonparametric"})))
-            .unwrap_err();
-    assert_eq!(e.path, "params.synthesis");
-    assert!(e.message.contains("not implemented"), "{}", e.message);
+            .unwrap();
+    let np = &p.nonparametric;
+    assert_eq!(
+        (np.neighbourhood, np.coherence, np.feature_weight),
+        (5, 1.0, 0.8)
+    );
+    for (bad, path) in [
+        (
+            json!({"neighbourhood": 4}),
+            "params.nonparametric.neighbourhood",
+        ),
+        (
+            json!({"neighbourhood": 17}),
+            "params.nonparametric.neighbourhood",
+        ),
+        (json!({"coherence": -1.0}), "params.nonparametric.coherence"),
+        (
+            json!({"feature_weight": 1.5}),
+            "params.nonparametric.feature_weight",
+        ),
+    ] {
+        let e = CorrelationParams::from_constraints(&constraints(
+            json!({"synthesis": "nonparametric", "nonparametric": bad}),
+        ))
+        .unwrap_err();
+        assert_eq!(e.path, path, "{bad}: {}", e.message);
+        assert!(e.message.contains("outside the range"), "{}", e.message);
+    }
     let e =
         CorrelationParams::from_constraints(&constraints(json!({"up": [0, 0, 0]}))).unwrap_err();
     assert_eq!(e.path, "params.up");

@@ -18,6 +18,8 @@ mod pattern_common;
 mod color_output;
 mod constraints_schema;
 mod correlation;
+mod correlation_common;
+mod correlation_nonparametric;
 mod correlation_parts;
 mod correlation_real;
 mod correlation_synthesis;

@@ -13,20 +13,24 @@
 //! 3. [`cca`] (§3.3): CCA (or PCA) guidance, fitted on the source, applied to both.
 //! 4. [`histmatch`] (§4): the target's guidance matched to the source's (marginals or
 //!    multiscale).
-//! 5. [`parametric`] (§5.2): clustered histogram synthesis of the target's colour.
+//! 5. [`parametric`] (§5.2): clustered histogram synthesis of the target's colour; or, with
+//!    `synthesis = "nonparametric"`, [`nonparametric`] (§5.1): image analogies with Ashikhmin
+//!    coherence over the surface pyramid, searched PatchMatch-style ([`guidance_index`] gives
+//!    the guidance-nearest source sample per target sample).
 //! 6. Output: the target's sample colours, interpolated over its level-0 mesh, baked through
 //!    [`crate::engine::methods::color_output::write_color_field`].
 //!
-//! Not implemented: the non-parametric synthesis (§5.1; refused at the params check), the
-//! debug files (guidance fields and segmentation as colours).
+//! Not implemented: the debug files (guidance fields and segmentation as colours).
 
 pub mod cca;
 pub mod cluster_stats;
 pub mod feather;
 pub mod features;
+pub mod guidance_index;
 pub mod histmatch;
 pub mod kmeans;
 pub mod mask;
+pub mod nonparametric;
 pub mod parametric;
 pub mod params;
 pub mod pyramid;
@@ -45,8 +49,9 @@ use crate::engine::spatial::Bvh;
 use crate::engine::texture::sample::MaterialSampler;
 
 use features::{sample_features, vertex_features, FeatureParams};
+use nonparametric::{synthesize_nonparametric, NonparametricSettings};
 use parametric::{synthesize, ParametricParams, SynthesisInput};
-use params::{CorrelationParams, FeatureMatching, Reduction, SourceMask};
+use params::{CorrelationParams, FeatureMatching, Reduction, SourceMask, Synthesis};
 use pyramid::SurfacePyramid;
 use report::{CorrelationReport, SideReport};
 
@@ -59,6 +64,11 @@ pub const SAMPLE_BYTES: u64 = 1024;
 /// Working-set bytes per input triangle: the 12-D features per input vertex and the ray-cast
 /// features' BVH (the loaded surfaces are counted by the job's own budget).
 pub const INPUT_TRIANGLE_BYTES: u64 = 256;
+/// Extra working-set bytes per requested sample for `synthesis = "nonparametric"`: the source's
+/// fans (16 samples × 6 floats) and centres, the target's fans, field and exponential-map charts
+/// (about 40 vertices × 12 bytes per sample at the default 5-neighbourhood) on level 0.
+/// Estimated from the layout, with a margin for larger neighbourhoods' charts.
+pub const NONPARAMETRIC_SAMPLE_BYTES: u64 = 2048;
 
 /// The `correlation` method (registry entry).
 pub struct Correlation;
@@ -96,7 +106,12 @@ impl Method for Correlation {
     ) -> Option<crate::engine::methods::WorkingSet> {
         let params = CorrelationParams::from_constraints(constraints).ok()?;
         let texture = crate::engine::methods::texture_working_set(constraints);
-        let samples = (params.samples as u64).saturating_mul(2 * SAMPLE_BYTES);
+        let per_sample = 2 * SAMPLE_BYTES
+            + match params.synthesis {
+                Synthesis::Parametric => 0,
+                Synthesis::Nonparametric => NONPARAMETRIC_SAMPLE_BYTES,
+            };
+        let samples = (params.samples as u64).saturating_mul(per_sample);
         let inputs = input_triangles.saturating_mul(INPUT_TRIANGLE_BYTES);
         let field = if inputs > samples.max(texture.bytes) {
             "inputs"
@@ -290,26 +305,48 @@ pub fn run(
     drop(span);
 
     let span = control.span(0.65, 0.9);
-    let (out_colors, _clusters, synthesis) = synthesize(
-        &SynthesisInput {
-            source: &src_pyr,
-            target: &tgt_pyr,
-            source_guidance: &src_g,
-            target_guidance: &tgt_g,
-            guidance_dims: model.dims,
-            source_color: &colors,
-            source_weight: &weights,
-        },
-        &ParametricParams {
-            clusters: params.clusters,
-            nearest_clusters: params.nearest_clusters,
-            levels: params.pyramid_levels,
-            iterations: params.iterations,
-            noise: params.noise,
-            seed,
-        },
-        control,
-    )?;
+    let input = SynthesisInput {
+        source: &src_pyr,
+        target: &tgt_pyr,
+        source_guidance: &src_g,
+        target_guidance: &tgt_g,
+        guidance_dims: model.dims,
+        source_color: &colors,
+        source_weight: &weights,
+    };
+    let (out_colors, synthesis, nonparametric) = match params.synthesis {
+        Synthesis::Parametric => {
+            let (c, _clusters, r) = synthesize(
+                &input,
+                &ParametricParams {
+                    clusters: params.clusters,
+                    nearest_clusters: params.nearest_clusters,
+                    levels: params.pyramid_levels,
+                    iterations: params.iterations,
+                    noise: params.noise,
+                    seed,
+                },
+                control,
+            )?;
+            (c, Some(r), None)
+        }
+        Synthesis::Nonparametric => {
+            let np = &params.nonparametric;
+            let (c, _matches, r) = synthesize_nonparametric(
+                &input,
+                &NonparametricSettings {
+                    neighbourhood: np.neighbourhood,
+                    coherence: np.coherence,
+                    feature_weight: np.feature_weight,
+                    passes: params.iterations.max(1),
+                    up: params.up_unit(),
+                    seed,
+                },
+                control,
+            )?;
+            (c, None, Some(r))
+        }
+    };
     drop(span);
 
     let _span = control.span(0.9, 1.0);
@@ -344,6 +381,7 @@ pub fn run(
         feature_matching: params.feature_matching,
         matching,
         synthesis,
+        nonparametric,
         output,
         warnings: warnings.clone(),
     };

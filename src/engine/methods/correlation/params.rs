@@ -6,9 +6,9 @@
 //! blends, the surface sample count (the paper's 512,000 is allowed; the default is a quarter of
 //! it so that a transfer runs in well under a minute on two cores).
 //!
-//! The non-parametric variant (§5.1) is parsed (`synthesis = "nonparametric"` and its
-//! `nonparametric` options) but not implemented: [`CorrelationParams::from_constraints`] refuses
-//! it with `params.synthesis: nonparametric synthesis is not implemented yet`.
+//! The non-parametric variant (§5.1) takes `synthesis = "nonparametric"` and its
+//! `nonparametric` options (neighbourhood, coherence κ, feature weight); its search passes per
+//! level are `iterations`.
 
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
@@ -27,7 +27,7 @@ pub enum Synthesis {
     /// Per-cluster histograms and regressions (§5.2). Default.
     #[default]
     Parametric,
-    /// Image analogies on the surface (§5.1). Not implemented yet: refused.
+    /// Image analogies on the surface with Ashikhmin coherence (§5.1).
     Nonparametric,
 }
 
@@ -82,17 +82,20 @@ pub enum SourceMask {
     },
 }
 
-/// Options of the non-parametric synthesis (§5.1); parsed, not implemented yet.
+/// Options of the non-parametric synthesis (§5.1).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct NonparametricParams {
-    /// Neighbourhood size in samples across (the paper's 5×5). Default 5.
+    /// Neighbourhood size in samples across, odd (the paper's 5×5): geodesic fans of
+    /// `(neighbourhood − 1)/2` rings of 8 spokes plus the centre. Default 5.
     #[schemars(range(min = 3, max = 15))]
     pub neighbourhood: usize,
     /// Ashikhmin coherence κ. Default 1 (paper).
     #[schemars(range(min = 0, max = 100))]
     pub coherence: f32,
-    /// Weight of the guidance against colour in a neighbourhood. Default 0.8 (the paper's Fig. 11).
+    /// Weight `w` of the guidance against the colour in the neighbourhood distance, both
+    /// normalised for dimension and variance: `(1 − w)·colour + w·guidance`, so 0.5 is the
+    /// paper's equal weights (§5.1 text). Default 0.8 (the paper's Fig. 11).
     #[schemars(range(min = 0, max = 1))]
     pub feature_weight: f32,
 }
@@ -112,7 +115,7 @@ impl Default for NonparametricParams {
 #[serde(default, deny_unknown_fields)]
 #[schemars(transform = crate::engine::methods::shared_params::shared_fields)]
 pub struct CorrelationParams {
-    /// `parametric` (default, §5.2) or `nonparametric` (§5.1, not implemented yet: refused).
+    /// `parametric` (default, §5.2) or `nonparametric` (§5.1).
     pub synthesis: Synthesis,
     /// `off`, `marginals` or `multiscale` (default, §4).
     pub feature_matching: FeatureMatching,
@@ -131,7 +134,8 @@ pub struct CorrelationParams {
     /// Levels of the surface pyramid (§3.1, §5.2). Default 3 (paper).
     #[schemars(range(min = 1, max = 8))]
     pub pyramid_levels: usize,
-    /// Heeger-Bergen iterations of the parametric synthesis (§5.2). Default 3 (paper).
+    /// Heeger-Bergen iterations of the parametric synthesis (§5.2; default 3, the paper's), and
+    /// the search passes per level of the non-parametric one (§5.1; at least 1 is used).
     #[schemars(range(min = 0, max = 20))]
     pub iterations: usize,
     /// Amplitude (standard deviation, in linear colour) of the white noise added to the
@@ -152,7 +156,7 @@ pub struct CorrelationParams {
     pub feature_rays: usize,
     /// Source regions removed from training. Default none.
     pub mask: Option<SourceMask>,
-    /// Options of the non-parametric synthesis (not implemented yet).
+    /// Options of the non-parametric synthesis.
     pub nonparametric: NonparametricParams,
     /// Shared: [`SharedParams::vertex_color_samples`].
     pub vertex_color_samples: usize,
@@ -186,8 +190,8 @@ impl Default for CorrelationParams {
 
 impl CorrelationParams {
     /// Reads and range-checks the parameters from the constraints' `params`, and what a schema
-    /// cannot say: `up` is a finite non-zero vector, the radii lie in (0, 2]; the non-parametric
-    /// synthesis is refused.
+    /// cannot say: `up` is a finite non-zero vector, the radii lie in (0, 2], the
+    /// neighbourhood is odd.
     ///
     /// # Errors
     /// A [`ConstraintsError`] naming `params.<field>`.
@@ -217,10 +221,11 @@ impl CorrelationParams {
                 ));
             }
         }
-        if self.synthesis == Synthesis::Nonparametric {
+        let n = self.nonparametric.neighbourhood;
+        if n.is_multiple_of(2) {
             return Err(ConstraintsError::new(
-                "params.synthesis",
-                "nonparametric synthesis is not implemented yet (use \"parametric\")",
+                "params.nonparametric.neighbourhood",
+                format!("{n} is outside the range odd numbers 3..=15"),
             ));
         }
         Ok(())

@@ -216,6 +216,11 @@ impl SurfacePyramid {
         &self.area[level]
     }
 
+    /// The multiresolution hierarchy of the levels (parents, descendants, prolongation).
+    pub fn hierarchy(&self) -> &Hierarchy {
+        &self.hierarchy
+    }
+
     /// The parent on level `level + 1` of every sample of `level` (`level` < the coarsest).
     pub fn parent(&self, level: usize) -> &[u32] {
         &self.hierarchy.level(level).parent

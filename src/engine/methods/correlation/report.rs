@@ -6,6 +6,7 @@ use serde::Serialize;
 
 use super::cca::GuidanceModel;
 use super::histmatch::FeatureMatchReport;
+use super::nonparametric::NonparametricReport;
 use super::parametric::ParametricReport;
 use super::params::{FeatureMatching, Reduction};
 use crate::engine::methods::color_output::ColorOutputReport;
@@ -40,8 +41,14 @@ pub struct CorrelationReport {
     pub matching: FeatureMatchReport,
     /// Clusters requested.
     pub clusters: usize,
-    /// The parametric synthesis (cluster sizes on source and target, …).
-    pub synthesis: ParametricReport,
+    /// The parametric synthesis (cluster sizes on source and target, …); absent with
+    /// `synthesis = "nonparametric"`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub synthesis: Option<ParametricReport>,
+    /// The non-parametric synthesis (per level: coherent choices, distances; coherent patch
+    /// sizes); absent with `synthesis = "parametric"`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub nonparametric: Option<NonparametricReport>,
     /// What was written into the target.
     pub output: ColorOutputReport,
     /// Things the user should know.
