@@ -20,6 +20,7 @@ mod correlation;
 mod correlation_parts;
 mod correlation_real;
 mod correlation_synthesis;
+mod detail_metric;
 mod elastiface;
 mod elastiface_blend;
 mod elastiface_inputs;

@@ -1,0 +1,8 @@
+//! Foundations of the `detail` method (Berkiten, Halber, Solomon, Ma, Li, Rusinkiewicz,
+//! *Learning Detail Transfer based on Geometric Features*, Eurographics 2017; issue 13).
+//!
+//! Not a registered method yet: only the building blocks exist, each tested on its own.
+//! - [`metric`] (§3.2.3, eqs. 1-2): the learned Mahalanobis metric (two-block ADMM), its factor
+//!   `M = AᵀA` and the equal-weights baseline.
+
+pub mod metric;
