@@ -21,6 +21,7 @@ mod correlation_parts;
 mod correlation_real;
 mod correlation_synthesis;
 mod detail_metric;
+mod detail_steerable;
 mod elastiface;
 mod elastiface_blend;
 mod elastiface_inputs;
