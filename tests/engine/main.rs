@@ -20,6 +20,7 @@ mod correlation;
 mod correlation_parts;
 mod correlation_real;
 mod correlation_synthesis;
+mod detail_displacement;
 mod detail_metric;
 mod detail_steerable;
 mod elastiface;

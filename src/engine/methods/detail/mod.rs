@@ -4,8 +4,11 @@
 //! Not a registered method yet: only the building blocks exist, each tested on its own.
 //! - [`metric`] (§3.2.3, eqs. 1-2): the learned Mahalanobis metric (two-block ADMM), its factor
 //!   `M = AᵀA` and the equal-weights baseline.
+//! - [`displacement`] (§3, Fig. 4): the base (given, or the source smoothed) and the signed
+//!   displacement along its normal to the detailed surface.
 //! - [`steerable`] (§3.2.1): the 17 sub-band deviations of a steerable pyramid of a square grid
 //!   of displacements (the exponential-map patch sampling that feeds it is not written yet).
 
+pub mod displacement;
 pub mod metric;
 pub mod steerable;
