@@ -22,6 +22,7 @@ mod correlation_real;
 mod correlation_synthesis;
 mod detail_displacement;
 mod detail_metric;
+mod detail_remesh;
 mod detail_steerable;
 mod elastiface;
 mod elastiface_blend;

@@ -224,7 +224,7 @@ impl MetricProblem {
         detail: &[f64],
         k: usize,
     ) -> Result<MetricProblem, MetricError> {
-        let n = if d == 0 { 0 } else { geometric.len() / d };
+        let n = geometric.len().checked_div(d).unwrap_or(0);
         if n < 2 || d == 0 || k == 0 {
             return Err(MetricError::TooSmall {
                 samples: n,
