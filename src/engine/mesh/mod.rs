@@ -5,7 +5,9 @@
 //! (see [`surface`] and [`mod@topology`] for the details).
 
 pub mod csr;
+pub mod halfedge;
 pub mod primitives;
+pub mod remesh;
 pub mod surface;
 pub mod topology;
 pub use surface::*;

@@ -18,6 +18,7 @@ pub mod align;
 pub mod color_output;
 pub mod correlation;
 pub mod correspondence;
+pub mod detail;
 pub mod elastiface;
 pub mod meshmatch;
 pub mod output;

@@ -1,0 +1,20 @@
+//! Foundations of the `detail` method (Berkiten, Halber, Solomon, Ma, Li, Rusinkiewicz,
+//! *Learning Detail Transfer based on Geometric Features*, Eurographics 2017; issue 13).
+//!
+//! Not a registered method yet: only the building blocks exist, each tested on its own.
+//! - [`metric`] (§3.2.3, eqs. 1-2): the learned Mahalanobis metric (two-block ADMM), its factor
+//!   `M = AᵀA` and the equal-weights baseline.
+//! - [`displacement`] (§3, Fig. 4): the base (given, or the source smoothed) and the signed
+//!   displacement along its normal to the detailed surface.
+//! - [`hierarchy`] (§3.1): four remeshed levels per shape, edge length halving per level, shared
+//!   absolute lengths between source and target (remesher: [`crate::engine::mesh::remesh`]).
+//! - [`steerable`] (§3.2.1): the 17 sub-band deviations of a steerable pyramid of a square grid
+//!   of displacements (the exponential-map patch sampling that feeds it is not written yet).
+//!
+//! Missing (see README "detail"): the detail and geometric features (§3.2.1-3.2.2), the synthesis
+//! (§3.3), the texture-space refinement and the outputs.
+
+pub mod displacement;
+pub mod hierarchy;
+pub mod metric;
+pub mod steerable;
