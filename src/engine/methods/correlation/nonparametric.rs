@@ -17,8 +17,9 @@
 //! summed over the fan samples and the centre, with `w = feature_weight`, σ² the source colour's
 //! mean channel variance and d the guidance dimension (the guidance has unit variance per axis on
 //! the source): each block is normalised for dimension and variance, so `w = 0.5` is the paper's
-//! "equal weights" (§5.1 text) and `w = 0.8` its Fig. 11. retex's default is 0.8: measured on the
-//! procedural weathering case (README) the placement follows the geometry better with it.
+//! "equal weights" (§5.1 text) and `w = 0.8` its Fig. 11. retex's default is 0.8, the figure's
+//! value; it was checked over seeds on the procedural weathering case but not yet compared with
+//! 0.5 there (README).
 //!
 //! **Search** (replaces the paper's exhaustive ANN, so that it runs in minutes). Per level, from
 //! the coarsest: the target's colour starts as the coarser level's result prolongated
