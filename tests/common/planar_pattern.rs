@@ -12,7 +12,7 @@ use retex::engine::asset::edits::{
 use retex::engine::asset::Asset;
 use retex::engine::control::Control;
 use retex::engine::methods::{
-    InputSpec, InputUse, Method, MethodError, MethodInput, MethodOutput, ResultFile,
+    InputSpec, Method, MethodError, MethodInput, MethodOutput, ResultFile,
 };
 use serde_json::{json, Value};
 
@@ -67,12 +67,9 @@ impl Method for PlanarPattern {
         MethodId::Pattern
     }
 
+    /// The same inputs as the real `pattern` method.
     fn inputs(&self) -> InputSpec {
-        InputSpec {
-            source: InputUse::Unused,
-            source_base: InputUse::Unused,
-            pattern: InputUse::Required,
-        }
+        retex::engine::methods::pattern::Pattern.inputs()
     }
 
     fn params_schema(&self) -> Value {

@@ -1,5 +1,6 @@
 //! Helpers for the geometry tests: a minimal OBJ reader (positions and faces only) and a `.npy`
-//! writer for exporting results to the libigl cross-check (`scripts/crosscheck_libigl.py`).
+//! writer for exporting results to the libigl cross-check (`scripts/crosscheck_libigl.py`), and
+//! face orientation for the star-shaped test shapes.
 
 use std::io::Write;
 use std::path::Path;
@@ -186,5 +187,21 @@ pub fn export_for_libigl() {
             "exported {name}: {n} vertices, {m} faces -> {}",
             dir.display()
         );
+    }
+}
+
+/// Orients every face so that its normal points away from the origin (star-shaped shapes):
+/// the triple product `a · (b × c)` must be positive.
+pub fn orient_outward(positions: &[[f32; 3]], faces: &mut [[u32; 3]]) {
+    for f in faces.iter_mut() {
+        let [a, b, c] = f.map(|v| positions[v as usize].map(f64::from));
+        let bc = [
+            b[1] * c[2] - b[2] * c[1],
+            b[2] * c[0] - b[0] * c[2],
+            b[0] * c[1] - b[1] * c[0],
+        ];
+        if a[0] * bc[0] + a[1] * bc[1] + a[2] * bc[2] < 0.0 {
+            f.swap(1, 2);
+        }
     }
 }

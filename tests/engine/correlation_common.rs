@@ -11,6 +11,7 @@ use retex::engine::spatial::Bvh;
 use serde_json::json;
 
 use crate::common::assert_validator_clean;
+use crate::common_geometry::orient_outward;
 use crate::meshmatch_common::{colored_points, glb_of, run_bytes};
 
 /// A closed latitude–longitude shape about the y axis with radius `radius(theta, phi)`
@@ -46,18 +47,7 @@ pub(crate) fn bumpy(rings: u32, segments: u32, radius: impl Fn(f64, f64) -> f64)
             faces.push([ring(i, j + 1), ring(i + 1, j + 1), ring(i + 1, j)]);
         }
     }
-    // Orient outward (star-shaped about the origin).
-    for f in faces.iter_mut() {
-        let [a, b, c] = f.map(|v| pos[v as usize].map(f64::from));
-        let bc = [
-            b[1] * c[2] - b[2] * c[1],
-            b[2] * c[0] - b[0] * c[2],
-            b[0] * c[1] - b[1] * c[0],
-        ];
-        if a[0] * bc[0] + a[1] * bc[1] + a[2] * bc[2] < 0.0 {
-            f.swap(1, 2);
-        }
-    }
+    orient_outward(&pos, &mut faces);
     Surface::from_triangles(pos, faces)
 }
 

@@ -21,60 +21,22 @@ use crate::elastiface_common::*;
 const STRETCHES: [[f64; 3]; 2] = [[1.4, 1.0, 0.8], [0.8, 1.2, 1.5]];
 const WEIGHTS: [f64; 3] = [0.0, 0.3, 0.7];
 
-fn normalize(p: [f64; 3]) -> [f64; 3] {
-    let l = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-    p.map(|c| c / l)
-}
-
-fn turn(p: [f64; 3]) -> [f64; 3] {
-    let (s, c) = 0.5f64.sin_cos();
-    let q = [c * p[0] - s * p[1], s * p[0] + c * p[1], p[2]];
-    let (s, c) = 0.3f64.sin_cos();
-    [q[0], c * q[1] - s * q[2], s * q[1] + c * q[2]]
-}
-
-/// The target's linear colour at unit-sphere point `q`.
-fn color(q: [f64; 3]) -> [f64; 3] {
-    [
-        0.5 + 0.4 * (2.5 * q[0] + 1.0).sin(),
-        0.5 + 0.4 * (2.0 * q[1]).sin(),
-        0.5 + 0.4 * (3.0 * q[2]).cos(),
-    ]
-}
-
 /// The template's own linear colour at UV (u, v): linear in (u, v), so that bilinear sampling
 /// and barycentric COLOR_0 interpolation both reproduce it.
 fn tcolor(u: f64, v: f64) -> [f64; 3] {
     [0.8, 0.1 + 0.5 * u, 0.7 - 0.5 * v]
 }
 
+/// The first nine sphere landmarks mapped by `stretch`, with `params`.
 fn constraints(stretch: [f64; 3], params: Value) -> Value {
-    let mut marks = vec![
-        [1.0, 0.0, 0.0],
-        [-1.0, 0.0, 0.0],
-        [0.0, 1.0, 0.0],
-        [0.0, -1.0, 0.0],
-        [0.0, 0.0, 1.0],
-        [0.0, 0.0, -1.0],
-    ];
-    for s in [[1.0, 1.0, 1.0], [-1.0, 1.0, -1.0], [1.0, -1.0, -1.0]] {
-        marks.push(normalize(s));
-    }
-    let corr: Vec<Value> = marks
-        .iter()
-        .map(|p| {
-            let q = [0, 1, 2].map(|k| p[k] * stretch[k]);
-            json!({"source": {"point": p}, "target": {"point": q}})
-        })
-        .collect();
-    json!({"version": 1, "method": "elastiface", "correspondences": corr,
-        "output": {"texture_size": 128, "padding": 4}, "params": params})
+    let mut c = sphere_constraints(stretch, 9);
+    c["params"] = params;
+    c
 }
 
 fn target_glb(stretch: [f64; 3]) -> Vec<u8> {
-    let unit = uv_sphere(64, 32, turn);
-    let tgt = unit.mapped(|p| [0, 1, 2].map(|k| p[k] * stretch[k]));
-    let png = texture_png(256, 128, |u, v| color(turn(sphere_point(u, v))));
+    let (tgt, _) = stretched_sphere(stretch);
+    let png = texture_png(256, 128, |u, v| sphere_color(turn(sphere_point(u, v))));
     mesh_glb(&tgt, Some(&png), 1.0)
 }
 
@@ -124,15 +86,6 @@ fn covered_texels(source: &MeshData, img: &DecodedImage) -> Vec<([f64; 2], [u8; 
         }
     }
     out
-}
-
-fn linear(c: u8) -> f64 {
-    let s = c as f64 / 255.0;
-    if s <= 0.04045 {
-        s / 12.92
-    } else {
-        ((s + 0.055) / 1.055).powf(2.4)
-    }
 }
 
 fn diagonal(p: &[[f32; 3]]) -> f64 {

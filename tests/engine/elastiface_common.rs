@@ -274,3 +274,109 @@ pub fn stage_timings(timings: &[retex::engine::control::StageTiming]) -> String 
         .collect::<Vec<_>>()
         .join(", ")
 }
+
+// The stretched-sphere pair shared by the engine and service input/blend tests: a UV-sphere
+// template onto an independently tessellated, turned sphere stretched per axis, whose colour at a
+// target point is `sphere_color(q)` of the unit-sphere point `q` it came from.
+
+/// `p / |p|`.
+pub fn normalize(p: [f64; 3]) -> [f64; 3] {
+    let l = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+    p.map(|c| c / l)
+}
+
+/// Turn of the target's tessellation (0.5 rad about z, then 0.3 rad about x).
+pub fn turn(p: [f64; 3]) -> [f64; 3] {
+    let (s, c) = 0.5f64.sin_cos();
+    let q = [c * p[0] - s * p[1], s * p[0] + c * p[1], p[2]];
+    let (s, c) = 0.3f64.sin_cos();
+    [q[0], c * q[1] - s * q[2], s * q[1] + c * q[2]]
+}
+
+/// Linear colour of the unit-sphere point `q`.
+pub fn sphere_color(q: [f64; 3]) -> [f64; 3] {
+    [
+        0.5 + 0.4 * (2.5 * q[0] + 1.0).sin(),
+        0.5 + 0.4 * (2.0 * q[1]).sin(),
+        0.5 + 0.4 * (3.0 * q[2]).cos(),
+    ]
+}
+
+/// The first `n` (≤ 10) landmarks on the unit sphere: the six axis points, then four diagonals.
+pub fn sphere_landmarks(n: usize) -> Vec<[f64; 3]> {
+    let mut out = vec![
+        [1.0, 0.0, 0.0],
+        [-1.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [0.0, -1.0, 0.0],
+        [0.0, 0.0, 1.0],
+        [0.0, 0.0, -1.0],
+    ];
+    for s in [
+        [1.0, 1.0, 1.0],
+        [-1.0, 1.0, -1.0],
+        [1.0, -1.0, -1.0],
+        [-1.0, -1.0, 1.0],
+    ] {
+        out.push(normalize(s));
+    }
+    out.truncate(n);
+    out
+}
+
+/// Elastiface constraints with the first `n` landmarks mapped by `stretch` (128² texture,
+/// 4 texels of padding).
+pub fn sphere_constraints(stretch: [f64; 3], n: usize) -> serde_json::Value {
+    let corr: Vec<serde_json::Value> = sphere_landmarks(n)
+        .iter()
+        .map(|p| {
+            let q = [0, 1, 2].map(|k| p[k] * stretch[k]);
+            json!({"source": {"point": p}, "target": {"point": q}})
+        })
+        .collect();
+    json!({"version": 1, "method": "elastiface", "correspondences": corr,
+        "output": {"texture_size": 128, "padding": 4}})
+}
+
+/// The target: a turned, finer UV sphere stretched by `stretch`, with its unit points.
+pub fn stretched_sphere(stretch: [f64; 3]) -> (MeshData, Vec<[f64; 3]>) {
+    let unit = uv_sphere(64, 32, turn);
+    let q = unit
+        .positions
+        .iter()
+        .map(|p| normalize(p.map(f64::from)))
+        .collect();
+    (unit.mapped(|p| [0, 1, 2].map(|k| p[k] * stretch[k])), q)
+}
+
+/// PSNR (dB, 8-bit sRGB) of `got` against `want` (linear colours).
+pub fn psnr(got: &[[f64; 3]], want: &[[f64; 3]]) -> f64 {
+    let mut se = 0.0;
+    for (g, w) in got.iter().zip(want) {
+        for d in 0..3 {
+            se += (srgb8(g[d]) as f64 - srgb8(w[d]) as f64).powi(2);
+        }
+    }
+    10.0 * (255.0f64.powi(2) / (se / (3 * got.len()) as f64)).log10()
+}
+
+/// The mean colour repeated: the constant baseline.
+pub fn constant(want: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    let mut m = [0.0; 3];
+    for w in want {
+        for d in 0..3 {
+            m[d] += w[d] / want.len() as f64;
+        }
+    }
+    vec![m; want.len()]
+}
+
+/// sRGB 8-bit → linear.
+pub fn linear(c: u8) -> f64 {
+    let s = c as f64 / 255.0;
+    if s <= 0.04045 {
+        s / 12.92
+    } else {
+        ((s + 0.055) / 1.055).powf(2.4)
+    }
+}

@@ -27,105 +27,8 @@ const SUZANNE: &str = "src_suzanne_khronos/glTF/Suzanne.gltf";
 /// The stretch sweep: anisotropic, elongated, and mixed.
 const STRETCHES: [[f64; 3]; 3] = [[1.4, 1.0, 0.8], [1.0, 1.3, 1.0], [0.8, 1.2, 1.5]];
 
-fn normalize(p: [f64; 3]) -> [f64; 3] {
-    let l = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-    p.map(|c| c / l)
-}
-
-/// Turn of the target's tessellation (0.5 rad about z, then 0.3 rad about x).
-fn turn(p: [f64; 3]) -> [f64; 3] {
-    let (s, c) = 0.5f64.sin_cos();
-    let q = [c * p[0] - s * p[1], s * p[0] + c * p[1], p[2]];
-    let (s, c) = 0.3f64.sin_cos();
-    [q[0], c * q[1] - s * q[2], s * q[1] + c * q[2]]
-}
-
-/// Linear colour of the unit-sphere point `q`.
-fn color(q: [f64; 3]) -> [f64; 3] {
-    [
-        0.5 + 0.4 * (2.5 * q[0] + 1.0).sin(),
-        0.5 + 0.4 * (2.0 * q[1]).sin(),
-        0.5 + 0.4 * (3.0 * q[2]).cos(),
-    ]
-}
-
-fn landmarks() -> Vec<[f64; 3]> {
-    let mut out = vec![
-        [1.0, 0.0, 0.0],
-        [-1.0, 0.0, 0.0],
-        [0.0, 1.0, 0.0],
-        [0.0, -1.0, 0.0],
-        [0.0, 0.0, 1.0],
-        [0.0, 0.0, -1.0],
-    ];
-    for s in [
-        [1.0, 1.0, 1.0],
-        [-1.0, 1.0, -1.0],
-        [1.0, -1.0, -1.0],
-        [-1.0, -1.0, 1.0],
-    ] {
-        out.push(normalize(s));
-    }
-    out
-}
-
-fn constraints(stretch: [f64; 3]) -> Value {
-    let corr: Vec<Value> = landmarks()
-        .iter()
-        .map(|p| {
-            let q = [0, 1, 2].map(|k| p[k] * stretch[k]);
-            json!({"source": {"point": p}, "target": {"point": q}})
-        })
-        .collect();
-    json!({"version": 1, "method": "elastiface", "correspondences": corr,
-        "output": {"texture_size": 128, "padding": 4}})
-}
-
-/// The target: a turned, finer UV sphere stretched by `stretch`, with its unit points.
-fn target(stretch: [f64; 3]) -> (MeshData, Vec<[f64; 3]>) {
-    let unit = uv_sphere(64, 32, turn);
-    let q = unit
-        .positions
-        .iter()
-        .map(|p| normalize(p.map(f64::from)))
-        .collect();
-    (unit.mapped(|p| [0, 1, 2].map(|k| p[k] * stretch[k])), q)
-}
-
 fn faces(m: &MeshData) -> Vec<[u32; 3]> {
     m.indices.chunks(3).map(|t| [t[0], t[1], t[2]]).collect()
-}
-
-/// PSNR (dB, 8-bit sRGB) of `got` against `want` (linear colours).
-fn psnr(got: &[[f64; 3]], want: &[[f64; 3]]) -> f64 {
-    let mut se = 0.0;
-    for (g, w) in got.iter().zip(want) {
-        for d in 0..3 {
-            se += (srgb8(g[d]) as f64 - srgb8(w[d]) as f64).powi(2);
-        }
-    }
-    10.0 * (255.0f64.powi(2) / (se / (3 * got.len()) as f64)).log10()
-}
-
-/// The mean colour repeated: the constant baseline.
-fn constant(want: &[[f64; 3]]) -> Vec<[f64; 3]> {
-    let mut m = [0.0; 3];
-    for w in want {
-        for d in 0..3 {
-            m[d] += w[d] / want.len() as f64;
-        }
-    }
-    vec![m; want.len()]
-}
-
-/// sRGB 8-bit → linear.
-fn linear(c: u8) -> f64 {
-    let s = c as f64 / 255.0;
-    if s <= 0.04045 {
-        s / 12.92
-    } else {
-        ((s + 0.055) / 1.055).powf(2.4)
-    }
 }
 
 #[test]
@@ -133,11 +36,11 @@ fn elastiface_color0_only_target_is_relaid_into_the_texture() {
     let source = uv_sphere(48, 24, |p| p);
     let grey = texture_png(4, 4, |_, _| [0.2, 0.2, 0.2]);
     for stretch in STRETCHES {
-        let (tgt, unit) = target(stretch);
+        let (tgt, unit) = stretched_sphere(stretch);
         let colors: Vec<f32> = unit
             .iter()
             .flat_map(|q| {
-                let c = color(*q);
+                let c = sphere_color(*q);
                 [c[0] as f32, c[1] as f32, c[2] as f32, 1.0]
             })
             .collect();
@@ -148,7 +51,7 @@ fn elastiface_color0_only_target_is_relaid_into_the_texture() {
         let out = run_glbs(
             &mesh_glb(&source, Some(&grey), 1.0),
             &mesh_glb_with(&tgt_untextured, None, 1.0, &[("COLOR_0", 4, colors)]),
-            constraints(stretch),
+            sphere_constraints(stretch, 10),
         )
         .expect("COLOR_0-only target");
         assert_validator_clean(&out.model, "elastiface_color0_target.glb");
@@ -186,7 +89,7 @@ fn elastiface_color0_only_target_is_relaid_into_the_texture() {
                 let h = bvh.closest_point(f, f32::INFINITY).unwrap();
                 let mut c = [0.0; 3];
                 for k in 0..3 {
-                    let q = color(unit[tf[h.face as usize][k] as usize]);
+                    let q = sphere_color(unit[tf[h.face as usize][k] as usize]);
                     for d in 0..3 {
                         c[d] += h.bary[k] as f64 * q[d];
                     }
@@ -194,7 +97,7 @@ fn elastiface_color0_only_target_is_relaid_into_the_texture() {
                 let px = img.pixels[(y * img.width + x) as usize];
                 got.push([0, 1, 2].map(|d| linear(px[d])));
                 at_fit.push(c);
-                ideal.push(color(normalize(p)));
+                ideal.push(sphere_color(normalize(p)));
             }
         }
         let exact = psnr(&got, &at_fit);
@@ -221,13 +124,13 @@ fn elastiface_uvless_source_gets_color0_on_its_own_vertices() {
         ..uv_sphere(48, 24, |p| p)
     };
     for stretch in STRETCHES {
-        let (tgt, _) = target(stretch);
+        let (tgt, _) = stretched_sphere(stretch);
         // Target texel (u, v) shows the colour of the unit point it covers.
-        let png = texture_png(256, 128, |u, v| color(turn(sphere_point(u, v))));
+        let png = texture_png(256, 128, |u, v| sphere_color(turn(sphere_point(u, v))));
         let out = run_glbs(
             &mesh_glb(&source, None, 1.0),
             &mesh_glb(&tgt, Some(&png), 1.0),
-            constraints(stretch),
+            sphere_constraints(stretch, 10),
         )
         .expect("UV-less source");
         assert_validator_clean(&out.model, "elastiface_uvless_source.glb");
@@ -243,7 +146,7 @@ fn elastiface_uvless_source_gets_color0_on_its_own_vertices() {
         let ideal: Vec<[f64; 3]> = source
             .positions
             .iter()
-            .map(|p| color(normalize(p.map(f64::from))))
+            .map(|p| sphere_color(normalize(p.map(f64::from))))
             .collect();
         let vs_ideal = psnr(&got, &ideal);
         let base = psnr(&constant(&ideal), &ideal);
@@ -358,12 +261,12 @@ fn elastiface_recomputes_tangents_on_the_fitted_source() {
         &[("NORMAL", 3, normals), ("TANGENT", 4, tangents)],
     );
     for stretch in STRETCHES {
-        let (tgt, _) = target(stretch);
-        let png = texture_png(64, 32, |u, v| color(turn(sphere_point(u, v))));
+        let (tgt, _) = stretched_sphere(stretch);
+        let png = texture_png(64, 32, |u, v| sphere_color(turn(sphere_point(u, v))));
         let out = run_glbs(
             &src_glb,
             &mesh_glb(&tgt, Some(&png), 1.0),
-            constraints(stretch),
+            sphere_constraints(stretch, 10),
         )
         .expect("source with TANGENT");
         assert_validator_clean(&out.model, "elastiface_tangents.glb");

@@ -16,6 +16,8 @@ use retex::engine::geometry::solid_angle::{
 use retex::engine::mesh::surface::Surface;
 use retex::engine::spatial::{ray_triangle, Bvh};
 
+use crate::common_geometry::orient_outward;
+
 /// Asserts `|got - want| <= tol`, naming the case.
 macro_rules! near {
     ($got:expr, $want:expr, $tol:expr, $($ctx:tt)*) => {{
@@ -32,22 +34,6 @@ fn normalize(p: [f64; 3]) -> [f64; 3] {
 /// Radius `1 + a sin(m θ) cos(n φ)` for [`uv_sphere`].
 fn bumpy(a: f64, m: f64, n: f64) -> impl Fn(f64, f64) -> f64 {
     move |th, ph| 1.0 + a * (m * th).sin() * (n * ph).cos()
-}
-
-/// Orients every face so that its normal points away from the origin (star-shaped shapes):
-/// the triple product `a · (b × c)` must be positive.
-fn orient_outward(positions: &[[f32; 3]], faces: &mut [[u32; 3]]) {
-    for f in faces.iter_mut() {
-        let [a, b, c] = f.map(|v| positions[v as usize].map(|x| x as f64));
-        let bc = [
-            b[1] * c[2] - b[2] * c[1],
-            b[2] * c[0] - b[0] * c[2],
-            b[0] * c[1] - b[1] * c[0],
-        ];
-        if a[0] * bc[0] + a[1] * bc[1] + a[2] * bc[2] < 0.0 {
-            f.swap(1, 2);
-        }
-    }
 }
 
 /// Icosahedron subdivided `levels` times, vertices on the sphere of radius `rho` at the origin.

@@ -19,103 +19,12 @@ use std::time::Duration;
 use serde_json::{json, Value};
 
 use crate::service_common::{get, submit, terminal, wait_for, Part, TestServer};
-use elastiface_common::{mesh_glb, mesh_glb_with, srgb8, texture_png, uv_sphere, MeshData};
+use elastiface_common::{
+    constant, linear, mesh_glb, mesh_glb_with, normalize, psnr, sphere_color, sphere_constraints,
+    sphere_point, stretched_sphere, texture_png, turn, uv_sphere, MeshData,
+};
 
 const STRETCH: [f64; 3] = [1.4, 1.0, 0.8];
-
-fn normalize(p: [f64; 3]) -> [f64; 3] {
-    let l = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-    p.map(|c| c / l)
-}
-
-/// Turn of the target's tessellation (0.5 rad about z, then 0.3 rad about x).
-fn turn(p: [f64; 3]) -> [f64; 3] {
-    let (s, c) = 0.5f64.sin_cos();
-    let q = [c * p[0] - s * p[1], s * p[0] + c * p[1], p[2]];
-    let (s, c) = 0.3f64.sin_cos();
-    [q[0], c * q[1] - s * q[2], s * q[1] + c * q[2]]
-}
-
-/// Linear colour of the unit-sphere point `q`.
-fn color(q: [f64; 3]) -> [f64; 3] {
-    [
-        0.5 + 0.4 * (2.5 * q[0] + 1.0).sin(),
-        0.5 + 0.4 * (2.0 * q[1]).sin(),
-        0.5 + 0.4 * (3.0 * q[2]).cos(),
-    ]
-}
-
-/// Ten correspondences: the axis points and four diagonals of the unit sphere, stretched.
-fn constraints() -> Vec<u8> {
-    let mut points = vec![
-        [1.0, 0.0, 0.0],
-        [-1.0, 0.0, 0.0],
-        [0.0, 1.0, 0.0],
-        [0.0, -1.0, 0.0],
-        [0.0, 0.0, 1.0],
-        [0.0, 0.0, -1.0],
-    ];
-    for s in [
-        [1.0, 1.0, 1.0],
-        [-1.0, 1.0, -1.0],
-        [1.0, -1.0, -1.0],
-        [-1.0, -1.0, 1.0],
-    ] {
-        points.push(normalize(s));
-    }
-    let corr: Vec<Value> = points
-        .iter()
-        .map(|p| {
-            let q = [0, 1, 2].map(|k| p[k] * STRETCH[k]);
-            json!({"source": {"point": p}, "target": {"point": q}})
-        })
-        .collect();
-    json!({"version": 1, "method": "elastiface", "correspondences": corr,
-        "output": {"texture_size": 128, "padding": 4}})
-    .to_string()
-    .into_bytes()
-}
-
-/// The target: a turned, finer UV sphere stretched by [`STRETCH`], with its unit points.
-fn target() -> (MeshData, Vec<[f64; 3]>) {
-    let unit = uv_sphere(64, 32, turn);
-    let q = unit
-        .positions
-        .iter()
-        .map(|p| normalize(p.map(f64::from)))
-        .collect();
-    (unit.mapped(|p| [0, 1, 2].map(|k| p[k] * STRETCH[k])), q)
-}
-
-/// PSNR (dB, 8-bit sRGB) of `got` against `want` (linear colours).
-fn psnr(got: &[[f64; 3]], want: &[[f64; 3]]) -> f64 {
-    let mut se = 0.0;
-    for (g, w) in got.iter().zip(want) {
-        for d in 0..3 {
-            se += (srgb8(g[d]) as f64 - srgb8(w[d]) as f64).powi(2);
-        }
-    }
-    10.0 * (255.0f64.powi(2) / (se / (3 * got.len()) as f64)).log10()
-}
-
-fn mean(want: &[[f64; 3]]) -> Vec<[f64; 3]> {
-    let mut m = [0.0; 3];
-    for w in want {
-        for d in 0..3 {
-            m[d] += w[d] / want.len() as f64;
-        }
-    }
-    vec![m; want.len()]
-}
-
-fn linear(c: u8) -> f64 {
-    let s = c as f64 / 255.0;
-    if s <= 0.04045 {
-        s / 12.92
-    } else {
-        ((s + 0.055) / 1.055).powf(2.4)
-    }
-}
 
 /// Posts the job, waits for it, downloads the result; returns it (validator-checked, loaded)
 /// with the job document.
@@ -125,7 +34,11 @@ fn run_job(source: Vec<u8>, target: Vec<u8>, name: &str) -> (retex::engine::asse
     let parts: Vec<Part<'_>> = vec![
         ("source", "template.glb", source),
         ("target", "head.glb", target),
-        ("constraints", "c.json", constraints()),
+        (
+            "constraints",
+            "c.json",
+            sphere_constraints(STRETCH, 10).to_string().into_bytes(),
+        ),
     ];
     let r = submit(base, &parts, &[]);
     assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
@@ -172,7 +85,7 @@ fn texels_vs_ideal(
             });
             let px = img.pixels[(y * img.width + x) as usize];
             got.push([0, 1, 2].map(|d| linear(px[d])));
-            ideal.push(color(normalize(p)));
+            ideal.push(sphere_color(normalize(p)));
         }
     }
     (got, ideal)
@@ -188,11 +101,11 @@ fn hausdorff_to_target(job: &Value) -> f64 {
 fn elastiface_job_with_a_color0_only_target_relays_it_into_the_texture() {
     let source = uv_sphere(48, 24, |p| p);
     let grey = texture_png(4, 4, |_, _| [0.2, 0.2, 0.2]);
-    let (tgt, unit) = target();
+    let (tgt, unit) = stretched_sphere(STRETCH);
     let colors: Vec<f32> = unit
         .iter()
         .flat_map(|q| {
-            let c = color(*q);
+            let c = sphere_color(*q);
             [c[0] as f32, c[1] as f32, c[2] as f32, 1.0]
         })
         .collect();
@@ -206,7 +119,7 @@ fn elastiface_job_with_a_color0_only_target_relays_it_into_the_texture() {
     assert_eq!(prim.positions.len(), source.positions.len());
     assert_eq!(prim.tex_coords.len(), 1, "TEXCOORD_0 kept");
     let (got, ideal) = texels_vs_ideal(&out, &source);
-    let (p, base) = (psnr(&got, &ideal), psnr(&mean(&ideal), &ideal));
+    let (p, base) = (psnr(&got, &ideal), psnr(&constant(&ideal), &ideal));
     let h = hausdorff_to_target(&job);
     eprintln!(
         "service COLOR_0 target: {} texels, psnr vs the ideal map {p:.1} dB (constant {base:.1}), \
@@ -224,10 +137,8 @@ fn elastiface_job_with_a_uvless_source_writes_color0() {
         uvs: None,
         ..uv_sphere(48, 24, |p| p)
     };
-    let (tgt, _) = target();
-    let png = texture_png(256, 128, |u, v| {
-        color(turn(elastiface_common::sphere_point(u, v)))
-    });
+    let (tgt, _) = stretched_sphere(STRETCH);
+    let png = texture_png(256, 128, |u, v| sphere_color(turn(sphere_point(u, v))));
     let (out, job) = run_job(
         mesh_glb(&source, None, 1.0),
         mesh_glb(&tgt, Some(&png), 1.0),
@@ -245,9 +156,9 @@ fn elastiface_job_with_a_uvless_source_writes_color0() {
     let ideal: Vec<[f64; 3]> = source
         .positions
         .iter()
-        .map(|p| color(normalize(p.map(f64::from))))
+        .map(|p| sphere_color(normalize(p.map(f64::from))))
         .collect();
-    let (p, base) = (psnr(&got, &ideal), psnr(&mean(&ideal), &ideal));
+    let (p, base) = (psnr(&got, &ideal), psnr(&constant(&ideal), &ideal));
     let h = hausdorff_to_target(&job);
     eprintln!(
         "service UV-less source: vertex colour psnr {p:.1} dB (constant {base:.1}), hausdorff \
@@ -281,10 +192,8 @@ fn with_eyes(m: &MeshData) -> MeshData {
 fn elastiface_job_onto_a_multi_component_target_succeeds() {
     let source = uv_sphere(48, 24, |p| p);
     let grey = texture_png(4, 4, |_, _| [0.2, 0.2, 0.2]);
-    let (tgt, _) = target();
-    let png = texture_png(256, 128, |u, v| {
-        color(turn(elastiface_common::sphere_point(u, v)))
-    });
+    let (tgt, _) = stretched_sphere(STRETCH);
+    let png = texture_png(256, 128, |u, v| sphere_color(turn(sphere_point(u, v))));
     let (out, job) = run_job(
         mesh_glb(&source, Some(&grey), 1.0),
         mesh_glb(&with_eyes(&tgt), Some(&png), 1.0),
@@ -302,7 +211,7 @@ fn elastiface_job_onto_a_multi_component_target_succeeds() {
     assert_eq!(prim.positions.len(), source.positions.len());
     assert_eq!(prim.tex_coords.len(), 1, "TEXCOORD_0 kept");
     let (got, ideal) = texels_vs_ideal(&out, &source);
-    let (p, base) = (psnr(&got, &ideal), psnr(&mean(&ideal), &ideal));
+    let (p, base) = (psnr(&got, &ideal), psnr(&constant(&ideal), &ideal));
     let h = hausdorff_to_target(&job);
     eprintln!(
         "service multi-component target: psnr vs the ideal map {p:.1} dB (constant {base:.1}), \
