@@ -158,6 +158,10 @@ pub struct CorrelationParams {
     pub mask: Option<SourceMask>,
     /// Options of the non-parametric synthesis.
     pub nonparametric: NonparametricParams,
+    /// Also write the debug files `guidance.glb` (the target's guidance as colours, the paper's
+    /// Fig. 8 bottom) and `segmentation.glb` (its k-means clusters, Fig. 9a), baked like the
+    /// output. Default false.
+    pub debug: bool,
     /// Shared: [`SharedParams::vertex_color_samples`].
     pub vertex_color_samples: usize,
     /// Shared: [`SharedParams::weld_tolerance`].
@@ -182,6 +186,7 @@ impl Default for CorrelationParams {
             feature_rays: 128,
             mask: None,
             nonparametric: NonparametricParams::default(),
+            debug: false,
             vertex_color_samples: shared.vertex_color_samples,
             weld_tolerance: shared.weld_tolerance,
         }
