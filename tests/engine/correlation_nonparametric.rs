@@ -12,8 +12,8 @@ use retex::engine::rng::SplitMix64;
 use serde_json::json;
 
 use crate::correlation_common::{
-    at_points, case, dirt_terms, luminance, pearson, source_shape, target_shape, tercile_shares,
-    transfer_named, weathered, Case, Dirt,
+    at_points, case, case_b, dirt_terms, luminance, pearson, source_shape, target_shape,
+    tercile_shares, transfer_named, weathered, Case, Dirt,
 };
 use crate::meshmatch_common::glb_of;
 
@@ -27,9 +27,9 @@ fn source_rgb(c: &Case) -> Vec<[f32; 3]> {
 
 #[test]
 fn nonparametric_weathering_follows_the_targets_geometry() {
-    // Sweep (README): seeds 1 and 2 of the noise and of the search.
-    for seed in [1u64, 2] {
-        let c = case(seed);
+    // Sweep (README, `correlation_sweep.rs`): both procedural cases, seeds 1-3 of the noise and
+    // of the search; here seeds 1, 2 of the first case and seed 1 of the second.
+    for (seed, c) in [(1u64, case(1)), (2, case(2)), (1, case_b(1))] {
         let src_lum = neg_lum(&source_rgb(&c));
         let r_source = pearson(&src_lum, &c.source_f);
         let np = json!({"synthesis": "nonparametric"});
@@ -71,8 +71,7 @@ fn nonparametric_weathering_follows_the_targets_geometry() {
 #[test]
 fn coherence_makes_larger_coherent_patches() {
     let mut measured = Vec::new();
-    for seed in [3u64, 4] {
-        let c = case(seed);
+    for (seed, c) in [(3u64, case(3)), (4, case(4)), (3, case_b(3))] {
         let patch = |kappa: f32| {
             let (pts, colors, report) = transfer_named(
                 &c,

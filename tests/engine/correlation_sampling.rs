@@ -63,7 +63,10 @@ fn mean_std(v: &[f64]) -> (f64, f64) {
 /// samples' places (the single lookup the filter replaces).
 fn sampled(cells: f64, samples: usize) -> (Vec<f64>, Vec<f64>) {
     let png = texture_png(1024, 1024, |u, v| [checker(cells, u, v); 3]);
-    let asset = load_bytes(&mesh_glb(&square(32), Some(png.as_slice()), 1.0), "checker.glb");
+    let asset = load_bytes(
+        &mesh_glb(&square(32), Some(png.as_slice()), 1.0),
+        "checker.glb",
+    );
     let surface = build_surface(&asset, &WeldParams::default()).unwrap();
     let pyr = SurfacePyramid::build(&surface, samples, 1, &Control::new()).unwrap();
     let colors = sample_colors(&asset, &surface, &pyr);
