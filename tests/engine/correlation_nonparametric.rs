@@ -90,9 +90,11 @@ fn coherence_makes_larger_coherent_patches() {
         measured.push((seed, patch(0.0), patch(1.0), patch(4.0)));
     }
     for (seed, (p0, e0, _), (p1, e1, r1), (p4, _, _)) in measured {
-        assert!(p1 > 1.5 * p0, "seed {seed}: κ=1 {p1:.1} vs κ=0 {p0:.1}");
-        // Measured (seeds 3, 4): mean patch 113 / 195 samples at κ = 0, 221 / 764 at κ = 1,
-        // 270 / 1032 at κ = 4; coherent edges 0.533 / 0.537 → 0.577 / 0.583.
+        // Sweep (README, `correlation_sweep.rs`: both cases × seeds 1-4): κ = 1 over κ = 0
+        // mean patch 1.58-2.35×, coherent edges +0.047 to +0.059, κ = 4 ≥ κ = 1 in every run.
+        // Here: seeds 3, 4 of the first case (mean patch 137 / 176 → 269 / 305 → 322 / 774
+        // samples at κ = 0 / 1 / 4) and seed 3 of the second (31 → 54 → 64).
+        assert!(p1 > 1.4 * p0, "seed {seed}: κ=1 {p1:.1} vs κ=0 {p0:.1}");
         assert!(e1 > e0 + 0.03, "seed {seed}: {e1:.3} vs {e0:.3}");
         assert!(p4 >= p1, "seed {seed}: κ=4 {p4:.1} vs κ=1 {p1:.1}");
         assert!(
