@@ -5,8 +5,8 @@
 //!
 //! Pipeline, one module per step:
 //! 1. [`pyramid`] (§3.1): dense even samples of both surfaces and their Gaussian / Laplacian
-//!    pyramids; the source's linear colour per sample (a point sample of the base colour at the
-//!    sample's place on the input surface); [`mask`]: training weights (masked samples get
+//!    pyramids; the source's linear colour per sample (the base colour box-filtered over about
+//!    the sample's own area by MeshMatch's sampling, [`sample_colors`]); [`mask`]: training weights (masked samples get
 //!    weight 0 in every statistic, and the training mean colour so that their colour does not
 //!    bleed through the colour pyramid into the samples around them).
 //! 2. [`features`] (§3.2): 12-D features per input vertex, interpolated to the samples.
