@@ -201,9 +201,36 @@ pub(crate) struct Case {
     pub(crate) source_colors: Vec<[f32; 4]>,
 }
 
+/// The second procedural case's source: vertical ribs over an equatorial bulge.
+pub(crate) fn ribbed_source_shape() -> Surface {
+    bumpy(72, 144, |th, ph| {
+        1.0 + 0.1 * (8.0 * ph).cos() * th.sin().powi(2)
+            + 0.08 * (3.0 * th).cos()
+            + 0.04 * (13.0 * th).sin() * (5.0 * ph + 0.7).cos()
+    })
+}
+
+/// The second procedural case's target: an oblate shape with diagonal waves.
+pub(crate) fn oblate_target_shape() -> Surface {
+    bumpy(72, 144, |th, ph| {
+        (1.0 + 0.13 * (6.0 * th + 3.0 * ph).sin() * th.sin()
+            + 0.05 * (10.0 * th).cos() * (8.0 * ph).sin())
+            * (1.0 - 0.2 * th.cos().powi(2))
+    })
+}
+
+/// The procedural weathering case on the first pair of shapes (see the module docs).
 pub(crate) fn case(seed: u64) -> Case {
-    let source = source_shape();
-    let target = target_shape();
+    case_on(source_shape(), target_shape(), seed)
+}
+
+/// The same weathering on the second pair of shapes (ribbed source, oblate target).
+pub(crate) fn case_b(seed: u64) -> Case {
+    case_on(ribbed_source_shape(), oblate_target_shape(), seed)
+}
+
+/// The weathering case on any source and target shape.
+pub(crate) fn case_on(source: Surface, target: Surface, seed: u64) -> Case {
     let ts = dirt_terms(&source);
     let dirt = Dirt::fit(&ts);
     let source_f: Vec<f32> = ts.iter().map(|t| dirt.f(*t)).collect();

@@ -12,8 +12,8 @@ use retex::engine::rng::SplitMix64;
 use serde_json::json;
 
 use crate::correlation_common::{
-    at_points, case, dirt_terms, luminance, pearson, source_shape, target_shape, tercile_shares,
-    transfer_named, weathered, Case, Dirt,
+    at_points, case, case_b, dirt_terms, luminance, pearson, source_shape, target_shape,
+    tercile_shares, transfer_named, weathered, Case, Dirt,
 };
 use crate::meshmatch_common::glb_of;
 
@@ -27,9 +27,9 @@ fn source_rgb(c: &Case) -> Vec<[f32; 3]> {
 
 #[test]
 fn nonparametric_weathering_follows_the_targets_geometry() {
-    // Sweep (README): seeds 1 and 2 of the noise and of the search.
-    for seed in [1u64, 2] {
-        let c = case(seed);
+    // Sweep (README, `correlation_sweep.rs`): both procedural cases, seeds 1-3 of the noise and
+    // of the search; here seeds 1, 2 of the first case and seed 1 of the second.
+    for (seed, c) in [(1u64, case(1)), (2, case(2)), (1, case_b(1))] {
         let src_lum = neg_lum(&source_rgb(&c));
         let r_source = pearson(&src_lum, &c.source_f);
         let np = json!({"synthesis": "nonparametric"});
@@ -71,8 +71,7 @@ fn nonparametric_weathering_follows_the_targets_geometry() {
 #[test]
 fn coherence_makes_larger_coherent_patches() {
     let mut measured = Vec::new();
-    for seed in [3u64, 4] {
-        let c = case(seed);
+    for (seed, c) in [(3u64, case(3)), (4, case(4)), (3, case_b(3))] {
         let patch = |kappa: f32| {
             let (pts, colors, report) = transfer_named(
                 &c,
@@ -91,9 +90,11 @@ fn coherence_makes_larger_coherent_patches() {
         measured.push((seed, patch(0.0), patch(1.0), patch(4.0)));
     }
     for (seed, (p0, e0, _), (p1, e1, r1), (p4, _, _)) in measured {
-        assert!(p1 > 1.5 * p0, "seed {seed}: κ=1 {p1:.1} vs κ=0 {p0:.1}");
-        // Measured (seeds 3, 4): mean patch 113 / 195 samples at κ = 0, 221 / 764 at κ = 1,
-        // 270 / 1032 at κ = 4; coherent edges 0.533 / 0.537 → 0.577 / 0.583.
+        // Sweep (README, `correlation_sweep.rs`: both cases × seeds 1-4): κ = 1 over κ = 0
+        // mean patch 1.58-2.35×, coherent edges +0.047 to +0.059, κ = 4 ≥ κ = 1 in every run.
+        // Here: seeds 3, 4 of the first case (mean patch 137 / 176 → 269 / 305 → 322 / 774
+        // samples at κ = 0 / 1 / 4) and seed 3 of the second (31 → 54 → 64).
+        assert!(p1 > 1.4 * p0, "seed {seed}: κ=1 {p1:.1} vs κ=0 {p0:.1}");
         assert!(e1 > e0 + 0.03, "seed {seed}: {e1:.3} vs {e0:.3}");
         assert!(p4 >= p1, "seed {seed}: κ=4 {p4:.1} vs κ=1 {p1:.1}");
         assert!(

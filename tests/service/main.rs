@@ -11,6 +11,7 @@ mod service_common;
 
 mod connections;
 mod contract;
+mod correlation;
 mod elastiface_inputs;
 mod fuzz_multipart;
 mod http;

@@ -9,6 +9,10 @@
 //! Statistics are area-weighted (each sample by its lumped area; on the source also by its mask
 //! weight), so the distribution matched is that over the surface, not over the samples.
 //!
+//! The axes of one rotation are orthonormal, so a move along one leaves the projections on the
+//! others unchanged: their 1-D transfers are independent and run in parallel (Pitié et al.'s
+//! own formulation: match every marginal of the rotated set, then rotate back).
+//!
 //! Convergence (Pitié et al. do not fix one): iterate until the root-mean-square move of an
 //! iteration falls below `TOLERANCE` (1 %) of the source's standard deviation, at most
 //! `MAX_ITERATIONS` (= 40) iterations; in 1-D one iteration is exact. The moves do not go to
@@ -21,6 +25,7 @@
 //!   areas, on the source times the Gaussian-smoothed mask weight), the bands are collapsed, and
 //!   then the values are matched once more.
 
+use rayon::prelude::*;
 use serde::Serialize;
 
 use super::pyramid::SurfacePyramid;
@@ -80,24 +85,34 @@ pub fn match_nd(
     let probe = random_basis(&mut SplitMix64::new(seed ^ 0xD15), dims, 8);
     let distance_before = sliced_distance(target, target_weights, source, &probe, dims) / spread;
     let mut iterations = 0;
-    let mut proj = vec![0.0f32; target.len()];
-    let mut src_proj = vec![0.0f32; source.values.len()];
     while iterations < MAX_ITERATIONS {
         control.check()?;
         iterations += 1;
         let basis = random_basis(&mut rng, dims, dims);
+        // The axes are orthonormal, so a move along one leaves the projections on the others
+        // unchanged: the 1-D transfers of one rotation are independent and run in parallel.
+        let frozen: &[[f32; 3]] = target;
+        let deltas: Vec<Vec<f32>> = basis
+            .par_iter()
+            .map(|axis| {
+                let mut proj = vec![0.0f32; frozen.len()];
+                let mut src_proj = vec![0.0f32; source.values.len()];
+                project(frozen, axis, &mut proj);
+                project(source.values, axis, &mut src_proj);
+                let q = Quantiles::new(&src_proj, source.weights);
+                drop(src_proj);
+                let before = proj.clone();
+                match_to(&mut proj, target_weights, &q);
+                proj.iter_mut().zip(&before).for_each(|(p, b)| *p -= b);
+                proj
+            })
+            .collect();
         let mut moved = 0.0f64;
-        for axis in &basis {
-            project(target, axis, &mut proj);
-            project(source.values, axis, &mut src_proj);
-            let q = Quantiles::new(&src_proj, source.weights);
-            let before = proj.clone();
-            match_to(&mut proj, target_weights, &q);
-            for ((t, new), old) in target.iter_mut().zip(&proj).zip(&before) {
-                let delta = new - old;
-                moved += f64::from(delta) * f64::from(delta);
+        for (axis, delta) in basis.iter().zip(&deltas) {
+            for (t, d) in target.iter_mut().zip(delta) {
+                moved += f64::from(*d) * f64::from(*d);
                 for k in 0..dims {
-                    t[k] += delta * axis[k];
+                    t[k] += d * axis[k];
                 }
             }
         }

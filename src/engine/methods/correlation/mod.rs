@@ -5,8 +5,8 @@
 //!
 //! Pipeline, one module per step:
 //! 1. [`pyramid`] (§3.1): dense even samples of both surfaces and their Gaussian / Laplacian
-//!    pyramids; the source's linear colour per sample (a point sample of the base colour at the
-//!    sample's place on the input surface); [`mask`]: training weights (masked samples get
+//!    pyramids; the source's linear colour per sample (the base colour box-filtered over about
+//!    the sample's own area by MeshMatch's sampling, [`sample_colors`]); [`mask`]: training weights (masked samples get
 //!    weight 0 in every statistic, and the training mean colour so that their colour does not
 //!    bleed through the colour pyramid into the samples around them).
 //! 2. [`features`] (§3.2): 12-D features per input vertex, interpolated to the samples.
@@ -20,10 +20,12 @@
 //! 6. Output: the target's sample colours, interpolated over its level-0 mesh, baked through
 //!    [`crate::engine::methods::color_output::write_color_field`].
 //!
-//! Not implemented: the debug files (guidance fields and segmentation as colours).
+//! 7. [`debug`] (with `params.debug`): `guidance.glb` and `segmentation.glb`, the target's
+//!    guidance as colours (Fig. 8 bottom) and its clusters (Fig. 9a), baked like the output.
 
 pub mod cca;
 pub mod cluster_stats;
+pub mod debug;
 pub mod feather;
 pub mod features;
 pub mod guidance_index;
@@ -43,11 +45,11 @@ use crate::engine::asset::Asset;
 use crate::engine::control::Control;
 use crate::engine::mesh::{build_surface, Surface, WeldParams};
 use crate::engine::methods::color_output::{write_color_field, ColorField};
+use crate::engine::methods::meshmatch::sampling::{synthesis_colors, SynthesisMesh};
 use crate::engine::methods::{InputSpec, Method, MethodError, MethodInput, MethodOutput};
-use crate::engine::multires::FacePoint;
 use crate::engine::spatial::Bvh;
-use crate::engine::texture::sample::MaterialSampler;
 
+use debug::{debug_files, guidance_range, DebugFields};
 use features::{sample_features, vertex_features, FeatureParams};
 use nonparametric::{synthesize_nonparametric, NonparametricSettings};
 use parametric::{synthesize, ParametricParams, SynthesisInput};
@@ -98,7 +100,8 @@ impl Method for Correlation {
     }
 
     /// Both models' samples and pyramids ([`SAMPLE_BYTES`] per requested sample, counted twice),
-    /// the per-vertex features ([`INPUT_TRIANGLE_BYTES`]) and one baked texture.
+    /// the per-vertex features ([`INPUT_TRIANGLE_BYTES`]) and one baked texture (three with the
+    /// debug files).
     fn working_set(
         &self,
         constraints: &Constraints,
@@ -120,33 +123,48 @@ impl Method for Correlation {
         } else {
             texture.field
         };
+        // The debug files bake two more textures while the output's edits are held.
+        let bakes = if params.debug { 3 } else { 1 };
         Some(crate::engine::methods::WorkingSet {
-            bytes: samples.saturating_add(inputs).saturating_add(texture.bytes),
+            bytes: samples
+                .saturating_add(inputs)
+                .saturating_add(texture.bytes.saturating_mul(bakes)),
             field,
         })
     }
 
     fn run(&self, input: &MethodInput<'_>, control: &Control) -> Result<MethodOutput, MethodError> {
         let params = CorrelationParams::from_constraints(input.constraints)?;
-        let (edits, report) = run(
+        let done = run(
             input.source()?,
             input.target,
             input.constraints,
             &params,
             control,
         )?;
-        let mut out = MethodOutput::target(edits, &report);
-        out.warnings = report.warnings;
+        let mut out = MethodOutput::target(done.edits, &done.report);
+        out.warnings = done.report.warnings;
+        if let Some(fields) = &done.debug {
+            out.files = debug_files(
+                input.target,
+                input.constraints,
+                params.vertex_color_samples,
+                fields,
+                control,
+            )?;
+        }
         Ok(out)
     }
 }
 
 /// The target's sample colours as a field over its surface: the closest point on the level-0
-/// mesh, colours interpolated barycentrically.
+/// mesh, colours interpolated barycentrically (or, with `nearest`, the colour of the triangle's
+/// corner with the largest weight: labels that must not blend).
 struct SampleField<'a> {
     mesh: &'a Surface,
     bvh: Bvh,
     colors: &'a [[f32; 3]],
+    nearest: bool,
 }
 
 impl ColorField for SampleField<'_> {
@@ -160,6 +178,13 @@ impl ColorField for SampleField<'_> {
         let hit = self.bvh.closest_point(p, bound)?;
         let f = self.mesh.faces[hit.face as usize];
         let mut c = [0.0f32, 0.0, 0.0, 1.0];
+        if self.nearest {
+            let k = (0..3)
+                .max_by(|a, b| hit.bary[*a].total_cmp(&hit.bary[*b]))
+                .unwrap_or(0);
+            let v = self.colors[f[k] as usize];
+            return Some(([v[0], v[1], v[2], 1.0].map(|x| x.clamp(0.0, 1.0)), hit.face));
+        }
         for k in 0..3 {
             for ch in 0..3 {
                 c[ch] += hit.bary[k] * self.colors[f[k] as usize][ch];
@@ -169,19 +194,17 @@ impl ColorField for SampleField<'_> {
     }
 }
 
-/// The source's linear base colour at each sample location (a point sample).
-pub fn sample_colors(asset: &Asset, input: &Surface, at: &[FacePoint]) -> Vec<[f32; 3]> {
-    use rayon::prelude::*;
-    let sampler = MaterialSampler::new(asset);
-    at.par_iter()
-        .map(|fp| match mask::triangle_point(asset, input, *fp) {
-            Some((prim, tri, b)) => {
-                let c = sampler.base_color(prim, tri, b);
-                [c[0], c[1], c[2]]
-            }
-            None => [1.0; 3],
-        })
-        .collect()
+/// The source's linear base colour of each level-0 sample, box-filtered over about the sample's
+/// own area by MeshMatch's sampling ([`synthesis_colors`]: the point sample at the sample (weight
+/// 2) and one halfway to the centroid of each incident sample triangle), so a texture finer than
+/// the sample spacing gives its local mean rather than aliasing.
+pub fn sample_colors(asset: &Asset, input: &Surface, pyramid: &SurfacePyramid) -> Vec<[f32; 3]> {
+    let mesh = pyramid.mesh(0);
+    let synthesis = SynthesisMesh {
+        surface: Surface::from_triangles(mesh.positions.clone(), mesh.faces.clone()),
+        input_face: pyramid.input_face().to_vec(),
+    };
+    synthesis_colors(asset, input, &synthesis)
 }
 
 /// Masked samples take the mean colour of the training samples: they carry no weight in any
@@ -224,7 +247,19 @@ fn side_report(surface: &Surface, p: &SurfacePyramid) -> SideReport {
     }
 }
 
-/// Runs `correlation`: the edits of the target and the report.
+/// What [`run`] gives.
+#[derive(Clone, Debug)]
+pub struct Transferred {
+    /// The edits of the target.
+    pub edits: Vec<Edit>,
+    /// The method's report.
+    pub report: CorrelationReport,
+    /// The fields of the debug files, with `params.debug`.
+    pub debug: Option<DebugFields>,
+}
+
+/// Runs `correlation`: the edits of the target, the report and (with `params.debug`) the
+/// fields of the debug files.
 ///
 /// # Errors
 /// [`MethodError`]: a bad surface, a mask that removes everything, cancellation.
@@ -234,7 +269,7 @@ pub fn run(
     constraints: &Constraints,
     params: &CorrelationParams,
     control: &Control,
-) -> Result<(Vec<Edit>, CorrelationReport), MethodError> {
+) -> Result<Transferred, MethodError> {
     let weld = WeldParams {
         relative_tolerance: params.weld_tolerance,
     };
@@ -246,7 +281,7 @@ pub fn run(
     let src_pyr = SurfacePyramid::build(&src, params.samples, params.pyramid_levels, control)?;
     let tgt_pyr = SurfacePyramid::build(&tgt, params.samples, params.pyramid_levels, control)?;
     control.stage("source_colour", 0)?;
-    let colors = sample_colors(source, &src, src_pyr.location());
+    let colors = sample_colors(source, &src, &src_pyr);
     let weights = match &params.mask {
         Some(m) => mask::training_weights(m, source, &src, src_pyr.location())?,
         None => vec![1.0; colors.len()],
@@ -314,9 +349,9 @@ pub fn run(
         source_color: &colors,
         source_weight: &weights,
     };
-    let (out_colors, synthesis, nonparametric) = match params.synthesis {
+    let (out_colors, labels, synthesis, nonparametric) = match params.synthesis {
         Synthesis::Parametric => {
-            let (c, _clusters, r) = synthesize(
+            let (c, labels, r) = synthesize(
                 &input,
                 &ParametricParams {
                     clusters: params.clusters,
@@ -328,7 +363,7 @@ pub fn run(
                 },
                 control,
             )?;
-            (c, Some(r), None)
+            (c, Some(labels), Some(r), None)
         }
         Synthesis::Nonparametric => {
             let np = &params.nonparametric;
@@ -344,10 +379,25 @@ pub fn run(
                 },
                 control,
             )?;
-            (c, None, Some(r))
+            (c, None, None, Some(r))
         }
     };
     drop(span);
+    let debug = if params.debug {
+        let labels = match labels {
+            Some(l) => l,
+            None => debug_labels(&tgt_g, &tgt_pyr, params, seed, control)?,
+        };
+        Some(DebugFields {
+            mesh: tgt_pyr.mesh(0).clone(),
+            guidance: tgt_g.clone(),
+            dims: model.dims,
+            range: guidance_range(&src_g, &train, model.dims),
+            labels,
+        })
+    } else {
+        None
+    };
 
     let _span = control.span(0.9, 1.0);
     let mesh = tgt_pyr.mesh(0);
@@ -355,6 +405,7 @@ pub fn run(
         mesh,
         bvh: Bvh::build(&mesh.positions, &mesh.faces),
         colors: &out_colors,
+        nearest: false,
     };
     let (edits, output) = write_color_field(
         target,
@@ -383,7 +434,34 @@ pub fn run(
         synthesis,
         nonparametric,
         output,
+        debug_guidance_range: debug.as_ref().map(|d| d.range),
         warnings: warnings.clone(),
     };
-    Ok((edits, report))
+    Ok(Transferred {
+        edits,
+        report,
+        debug,
+    })
+}
+
+/// The target's k-means segmentation for the debug file when the synthesis made none (the
+/// non-parametric one): the parametric synthesis's clustering of the target (`clusters`, its
+/// seed) on the same guidance.
+fn debug_labels(
+    guidance: &[[f32; 3]],
+    pyramid: &SurfacePyramid,
+    params: &CorrelationParams,
+    seed: u64,
+    control: &Control,
+) -> Result<Vec<u32>, MethodError> {
+    control.stage("debug segmentation", 0)?;
+    Ok(kmeans::kmeans(
+        guidance,
+        pyramid.area(0),
+        params.clusters,
+        seed ^ 0x0074_6774,
+        control,
+    )?
+    .map(|k| k.labels)
+    .unwrap_or_else(|| vec![0; guidance.len()]))
 }

@@ -56,6 +56,7 @@ pub struct SurfacePyramid {
     hierarchy: Hierarchy,
     levels: usize,
     location: Vec<FacePoint>,
+    input_face: Vec<u32>,
     area: Vec<Vec<f32>>,
     /// Per level (all but the coarsest): vertex neighbours as CSR (offsets, neighbours).
     neighbours: Vec<(Vec<u32>, Vec<u32>)>,
@@ -156,6 +157,7 @@ impl SurfacePyramid {
             control,
         )
         .map_err(from_resample)?;
+        let input_face = r.triangle_faces;
         let (mesh0, location) = drop_unused(r.positions, r.triangles, r.sources);
         let n0 = mesh0.vertex_count() as f64;
         let coarsest = n0 * (LEVEL_RATIO as f64).powi(levels as i32 - 1);
@@ -181,6 +183,7 @@ impl SurfacePyramid {
             hierarchy,
             levels,
             location,
+            input_face,
             area,
             neighbours,
         })
@@ -209,6 +212,11 @@ impl SurfacePyramid {
     /// Level-0 sample → its (face, barycentric) point on the input surface.
     pub fn location(&self) -> &[FacePoint] {
         &self.location
+    }
+
+    /// Level-0 triangle → the input face it lies in.
+    pub fn input_face(&self) -> &[u32] {
+        &self.input_face
     }
 
     /// Lumped area per sample of `level` (the weights for statistics).

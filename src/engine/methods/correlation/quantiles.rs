@@ -35,15 +35,27 @@ fn usable(w: f32) -> bool {
     w.is_finite() && w > 0.0
 }
 
-/// Indices of the samples that count, sorted by value (ties by index: stable).
+/// The bits of `x` as an unsigned key with the order of [`f32::total_cmp`].
+fn order_key(x: f32) -> u32 {
+    let b = x.to_bits();
+    if b & 0x8000_0000 != 0 {
+        !b
+    } else {
+        b | 0x8000_0000
+    }
+}
+
+/// Indices of the samples that count, sorted by value (ties by index: stable). The sort runs on
+/// packed `(value key, index)` integers, so it compares in cache instead of through the indices.
 fn sorted_indices(values: &[f32], weights: Option<&[f32]>) -> Vec<u32> {
-    let mut idx: Vec<u32> = (0..values.len() as u32)
+    let mut keys: Vec<u64> = (0..values.len() as u32)
         .filter(|&i| {
             values[i as usize].is_finite() && weights.is_none_or(|w| usable(w[i as usize]))
         })
+        .map(|i| (u64::from(order_key(values[i as usize])) << 32) | u64::from(i))
         .collect();
-    idx.sort_by(|&a, &b| values[a as usize].total_cmp(&values[b as usize]));
-    idx
+    keys.sort_unstable();
+    keys.into_iter().map(|k| k as u32).collect()
 }
 
 /// Midpoint cumulative weight (in (0, 1)) of each index of `idx`, in `idx` order.
@@ -95,7 +107,12 @@ impl Quantiles {
         }
         let u = if u.is_nan() { 0.5 } else { u.clamp(0.0, 1.0) };
         // First knot with position > u.
-        let j = self.u.partition_point(|&x| x <= u);
+        self.between(self.u.partition_point(|&x| x <= u), u)
+    }
+
+    /// The inverse CDF at `u` given `j`, the first knot with position > `u` (non-empty).
+    fn between(&self, j: usize, u: f32) -> f32 {
+        let n = self.v.len();
         if j == 0 {
             return self.v[0];
         }
@@ -180,8 +197,15 @@ pub fn match_to(values: &mut [f32], weights: Option<&[f32]>, target: &Quantiles)
     let idx = sorted_indices(values, weights);
     let u = midpoints(&idx, weights);
     let mut ranked = vec![false; values.len()];
+    // `u` is non-decreasing: one forward walk over the target's knots replaces a binary search
+    // per value (the same piecewise-linear inverse CDF as [`Quantiles::value_at`]).
+    let mut j = 0usize;
+    let n = target.v.len();
     for (&i, &ui) in idx.iter().zip(&u) {
-        values[i as usize] = target.value_at(ui);
+        while j < n && target.u[j] <= ui {
+            j += 1;
+        }
+        values[i as usize] = target.between(j, ui);
         ranked[i as usize] = true;
     }
     let median = target.value_at(0.5);

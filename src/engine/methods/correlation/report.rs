@@ -51,6 +51,10 @@ pub struct CorrelationReport {
     pub nonparametric: Option<NonparametricReport>,
     /// What was written into the target.
     pub output: ColorOutputReport,
+    /// With `params.debug`: per guidance axis, the source's 1st and 99th percentiles that map to
+    /// 0 and 1 in `guidance.glb`'s R, G, B.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub debug_guidance_range: Option<[[f32; 2]; 3]>,
     /// Things the user should know.
     pub warnings: Vec<String>,
 }
