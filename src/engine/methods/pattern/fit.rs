@@ -36,6 +36,9 @@ use super::mask::Mask;
 use super::texture::PatternTexture;
 use crate::engine::rng;
 
+/// Orientations refined at full resolution after the coarse search (module doc).
+pub const REFINED_ORIENTATIONS: usize = 3;
+
 /// A rigid map of frame pixels into pattern pixels: `pattern_px = R(rotation) · frame_px + t`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Placement {
@@ -125,27 +128,107 @@ pub fn best_fit_with_rotation(
         return None;
     }
     let n = texture.orientations();
-    let results: Vec<Option<(f32, Placement)>> = (0..n)
-        .into_par_iter()
-        .map(|k| {
-            let alpha = std::f32::consts::TAU * k as f32 / n as f32 + phi;
-            let image = error_image_of(texture, &cells, patch_bbox_px, alpha)?;
-            minimum(&image, texture.toroidal())
-        })
-        .collect();
-    let mut best: Option<Fit> = None;
-    for (k, result) in results.into_iter().enumerate() {
-        if let Some((error, placement)) = result {
-            if best.is_none_or(|b| error < b.error) {
-                best = Some(Fit {
-                    placement,
-                    error,
-                    orientation_index: k,
-                });
+    let alpha = |k: usize| std::f32::consts::TAU * k as f32 / n as f32 + phi;
+    let all: Vec<usize> = (0..n).collect();
+    let candidates = match texture.coarse() {
+        Some((coarse, s)) => coarse_candidates(coarse, s, mask, patch_bbox_px, &alpha),
+        None => all.clone(),
+    };
+    let fine = |ks: &[usize]| -> Option<Fit> {
+        let results: Vec<(usize, Option<(f32, Placement)>)> = ks
+            .par_iter()
+            .map(|&k| {
+                let image = error_image_of(texture, &cells, patch_bbox_px, alpha(k));
+                (
+                    k,
+                    image.and_then(|image| minimum(&image, texture.toroidal())),
+                )
+            })
+            .collect();
+        let mut best: Option<Fit> = None;
+        for (k, result) in results {
+            if let Some((error, placement)) = result {
+                if best.is_none_or(|b| error < b.error) {
+                    best = Some(Fit {
+                        placement,
+                        error,
+                        orientation_index: k,
+                    });
+                }
             }
         }
+        best
+    };
+    // Candidates the coarse grid allowed but the full one does not (a non-toroidal border case)
+    // fall back to the full search.
+    fine(&candidates).or_else(|| (candidates.len() < n).then(|| fine(&all)).flatten())
+}
+
+/// The [`REFINED_ORIENTATIONS`] orientations whose best offset on the reduced pattern is the
+/// lowest (all of them when none has a valid offset there).
+fn coarse_candidates(
+    coarse: &PatternTexture,
+    s: usize,
+    mask: &Mask,
+    patch_bbox_px: [[f32; 2]; 2],
+    alpha: &(dyn Fn(usize) -> f32 + Sync),
+) -> Vec<usize> {
+    let n = coarse.orientations();
+    let cells = reduced_cells(mask, s);
+    let inv = 1.0 / s as f32;
+    let bbox = patch_bbox_px.map(|p| p.map(|v| v * inv));
+    let mut scored: Vec<(f32, usize)> = (0..n)
+        .into_par_iter()
+        .filter_map(|k| {
+            let image = error_image_of(coarse, &cells, bbox, alpha(k))?;
+            let best = image
+                .values
+                .iter()
+                .copied()
+                .filter(|v| v.is_finite())
+                .fold(f32::INFINITY, f32::min);
+            best.is_finite().then_some((best, k))
+        })
+        .collect();
+    if scored.is_empty() {
+        return (0..n).collect();
     }
-    best
+    scored.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    scored
+        .into_iter()
+        .take(REFINED_ORIENTATIONS)
+        .map(|(_, k)| k)
+        .collect()
+}
+
+/// The mask's support cells merged per `s × s` block of mask cells, in reduced pixels: weight =
+/// the block's summed support, colour = the support-weighted mean, position = the
+/// support-weighted centroid divided by `s`.
+fn reduced_cells(mask: &Mask, s: usize) -> Vec<Cell> {
+    let (bw, bh) = (mask.width.div_ceil(s), mask.height.div_ceil(s));
+    // Per block: Σw, Σw·colour, Σw·position.
+    let mut blocks = vec![(0.0f32, [0.0f32; 3], [0.0f32; 2]); bw * bh];
+    for cell in support_cells_indexed(mask) {
+        let (i, j, c) = cell;
+        let b = &mut blocks[(j / s) * bw + i / s];
+        b.0 += c.weight;
+        for k in 0..3 {
+            b.1[k] += c.weight * c.colour[k];
+        }
+        for k in 0..2 {
+            b.2[k] += c.weight * c.frame[k];
+        }
+    }
+    let inv_s = 1.0 / s as f32;
+    blocks
+        .into_iter()
+        .filter(|b| b.0 > 0.0)
+        .map(|(w, c, p)| Cell {
+            frame: p.map(|v| v / w * inv_s),
+            colour: c.map(|v| v / w),
+            weight: w,
+        })
+        .collect()
 }
 
 /// `E / Σ J` for every integer offset at one rotation (`None` if the mask has no support or,
@@ -189,24 +272,29 @@ struct Cell {
 }
 
 fn support_cells(mask: &Mask) -> Vec<Cell> {
-    let mut cells = Vec::new();
-    if mask.colour.len() != mask.width * mask.height || mask.support.len() != mask.colour.len() {
-        return cells;
-    }
-    for j in 0..mask.height {
-        for i in 0..mask.width {
-            let index = j * mask.width + i;
-            let (w, c) = (mask.support[index], mask.colour[index]);
-            if w > 0.0 && w.is_finite() && c.iter().all(|v| v.is_finite()) {
-                cells.push(Cell {
+    support_cells_indexed(mask).map(|(_, _, c)| c).collect()
+}
+
+/// The support cells with their grid indices `(i, j)`.
+fn support_cells_indexed(mask: &Mask) -> impl Iterator<Item = (usize, usize, Cell)> + '_ {
+    let ok =
+        mask.colour.len() == mask.width * mask.height && mask.support.len() == mask.colour.len();
+    let n = if ok { mask.colour.len() } else { 0 };
+    (0..n).filter_map(move |index| {
+        let (i, j) = (index % mask.width, index / mask.width);
+        let (w, c) = (mask.support[index], mask.colour[index]);
+        (w > 0.0 && w.is_finite() && c.iter().all(|v| v.is_finite())).then(|| {
+            (
+                i,
+                j,
+                Cell {
                     frame: mask.cell_centre(i, j),
                     colour: c,
                     weight: w.min(1.0),
-                });
-            }
-        }
-    }
-    cells
+                },
+            )
+        })
+    })
 }
 
 /// A deterministic hash of a mask's geometry and contents (the seed of its rotation φ).

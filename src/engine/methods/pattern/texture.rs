@@ -54,6 +54,28 @@ pub struct PatternTexture {
     fft: Fft2,
     /// Spectra of `T_0, T_1, T_2` and `|T|²` (layout of [`Fft2`]).
     spectra: [Vec<Complex32>; 4],
+    /// The box-filtered copy for the coarse orientation search and its factor (module doc).
+    coarse: Option<(Box<PatternTexture>, usize)>,
+}
+
+/// The coarse search grid's smallest side: a pattern is reduced by 2 or 4 only while both sides
+/// stay at or above this (256² → 64², 128² → 64², 64² is searched at full resolution).
+pub const COARSE_MIN_SIDE: usize = 64;
+
+/// The largest reduction factor of the coarse search.
+pub const MAX_COARSE_FACTOR: usize = 4;
+
+/// The reduction factor of the coarse search for a `w × h` pattern: the largest of 4, 2 that
+/// divides both sides and keeps them at or above [`COARSE_MIN_SIDE`], else 1 (no coarse search).
+pub fn coarse_factor(w: usize, h: usize) -> usize {
+    let mut s = MAX_COARSE_FACTOR;
+    while s > 1 {
+        if w % s == 0 && h % s == 0 && w / s >= COARSE_MIN_SIDE && h / s >= COARSE_MIN_SIDE {
+            return s;
+        }
+        s /= 2;
+    }
+    1
 }
 
 /// The colour-space point `(S cos 2πH, S sin 2πH, V)` of an sRGB-encoded texel.
@@ -118,6 +140,24 @@ impl PatternTexture {
             )));
         }
         let colour: Vec<[f32; 3]> = image.pixels.iter().map(|&p| colour_of(p)).collect();
+        let mut texture = Self::from_colour(w, h, toroidal, orientations, colour);
+        let s = coarse_factor(w, h);
+        if s > 1 {
+            let coarse = downsample(&texture.colour, w, h, s);
+            let coarse = Self::from_colour(w / s, h / s, toroidal, orientations, coarse);
+            texture.coarse = Some((Box::new(coarse), s));
+        }
+        Ok(texture)
+    }
+
+    /// The texture of colour-space texels (sizes checked by the caller), its spectra computed.
+    fn from_colour(
+        w: usize,
+        h: usize,
+        toroidal: bool,
+        orientations: usize,
+        colour: Vec<[f32; 3]>,
+    ) -> Self {
         let norm_sq: Vec<f32> = colour
             .iter()
             .map(|c| c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
@@ -130,16 +170,22 @@ impl PatternTexture {
             fft.forward(&channel(2)),
             fft.forward(&norm_sq),
         ];
-        Ok(Self {
-            width: image.width,
-            height: image.height,
+        Self {
+            width: w as u32,
+            height: h as u32,
             toroidal,
             orientations,
             colour,
             norm_sq,
             fft,
             spectra,
-        })
+            coarse: None,
+        }
+    }
+
+    /// The reduced copy searched first by the best fit and its reduction factor, if any.
+    pub fn coarse(&self) -> Option<(&PatternTexture, usize)> {
+        self.coarse.as_ref().map(|(t, s)| (&**t, *s))
     }
 
     /// Width in texels.
@@ -221,6 +267,27 @@ impl PatternTexture {
     pub(crate) fn spectra(&self) -> &[Vec<Complex32>; 4] {
         &self.spectra
     }
+}
+
+/// The `s × s` box means of a `w × h` colour grid (both sides divisible by `s`).
+fn downsample(colour: &[[f32; 3]], w: usize, h: usize, s: usize) -> Vec<[f32; 3]> {
+    let (cw, ch) = (w / s, h / s);
+    let mut out = vec![[0.0f32; 3]; cw * ch];
+    for y in 0..h {
+        for x in 0..w {
+            let o = &mut out[(y / s) * cw + x / s];
+            for (a, b) in o.iter_mut().zip(&colour[y * w + x]) {
+                *a += b;
+            }
+        }
+    }
+    let inv = 1.0 / (s * s) as f32;
+    for o in &mut out {
+        for a in o {
+            *a *= inv;
+        }
+    }
+    out
 }
 
 #[cfg(test)]
