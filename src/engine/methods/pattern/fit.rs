@@ -26,6 +26,21 @@
 //! cell and every corner of the rotated patch bounding box stays inside the image; an orientation
 //! with no valid offset is skipped, and no valid offset at all gives `None`.
 //!
+//! **Coarse-to-fine search (not in the paper).** The paper searches all 19 orientations at full
+//! resolution (its text describes no multiresolution fit; its coarse-to-fine order is the
+//! cluster hierarchy's). Here, when the pattern has a reduced copy
+//! ([`PatternTexture::coarse`]: 2× or 4× box means, at least 64 px a side), every orientation is
+//! first searched on it, with the mask merged per `s × s` block (summed support, weighted mean
+//! colour, weighted centroid); the [`REFINED_ORIENTATIONS`] (3) orientations with the lowest
+//! coarse minimum, and any other whose coarse minimum lies below `best + COARSE_MARGIN · (median
+//! − best)` ([`COARSE_MARGIN`] = 0.25: with the 3 alone a planted placement on a 512² wood
+//! texture with texel-scale grain, trial 3 of `planted_placements_are_recovered_on_shared_textures`,
+//! was missed), are then searched at full resolution exactly as above, and the best of those is
+//! the fit (if none of them has a valid full-resolution offset, all orientations are). Per fit on
+//! a 256² pattern that is 19 FFT passes of 64² plus 3 of 256² instead of 19 of 256²: the
+//! skull benchmark went from 9.8 s to 2.7 s with the same fits and seam errors within 0.001 on
+//! two smooth 256² patterns; on a pattern with 4-px detail the seam error rose by about 3% (README).
+//!
 //! **Normalisation.** `Fit::error` is `E / Σ J` (the mean squared colour-space error per mask
 //! pixel), so thresholds do not depend on the mask's size.
 
@@ -38,6 +53,10 @@ use crate::engine::rng;
 
 /// Orientations refined at full resolution after the coarse search (module doc).
 pub const REFINED_ORIENTATIONS: usize = 3;
+
+/// ... plus every orientation whose coarse minimum is below `best + COARSE_MARGIN · (median −
+/// best)` (module doc).
+pub const COARSE_MARGIN: f32 = 0.25;
 
 /// A rigid map of frame pixels into pattern pixels: `pattern_px = R(rotation) · frame_px + t`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -164,8 +183,9 @@ pub fn best_fit_with_rotation(
     fine(&candidates).or_else(|| (candidates.len() < n).then(|| fine(&all)).flatten())
 }
 
-/// The [`REFINED_ORIENTATIONS`] orientations whose best offset on the reduced pattern is the
-/// lowest (all of them when none has a valid offset there).
+/// The orientations refined at full resolution: the [`REFINED_ORIENTATIONS`] with the lowest
+/// coarse minimum, and every other one whose coarse minimum is within [`COARSE_MARGIN`] of the
+/// spread between the lowest and the median (all of them when none has a valid coarse offset).
 fn coarse_candidates(
     coarse: &PatternTexture,
     s: usize,
@@ -173,6 +193,31 @@ fn coarse_candidates(
     patch_bbox_px: [[f32; 2]; 2],
     alpha: &(dyn Fn(usize) -> f32 + Sync),
 ) -> Vec<usize> {
+    let n = coarse.orientations();
+    let scored = coarse_scores(coarse, s, mask, patch_bbox_px, alpha);
+    if scored.is_empty() {
+        return (0..n).collect();
+    }
+    let best = scored[0].0;
+    let median = scored[scored.len() / 2].0;
+    let cut = best + COARSE_MARGIN * (median - best);
+    scored
+        .iter()
+        .enumerate()
+        .filter(|(i, (v, _))| *i < REFINED_ORIENTATIONS || *v <= cut)
+        .map(|(_, (_, k))| *k)
+        .collect()
+}
+
+/// `(coarse minimum, k)` per orientation with a valid coarse offset, lowest first, for the
+/// pattern's reduced copy `coarse` (factor `s`) and orientations `alpha(k)`.
+fn coarse_scores(
+    coarse: &PatternTexture,
+    s: usize,
+    mask: &Mask,
+    patch_bbox_px: [[f32; 2]; 2],
+    alpha: &(dyn Fn(usize) -> f32 + Sync),
+) -> Vec<(f32, usize)> {
     let n = coarse.orientations();
     let cells = reduced_cells(mask, s);
     let inv = 1.0 / s as f32;
@@ -190,15 +235,24 @@ fn coarse_candidates(
             best.is_finite().then_some((best, k))
         })
         .collect();
-    if scored.is_empty() {
-        return (0..n).collect();
-    }
     scored.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     scored
-        .into_iter()
-        .take(REFINED_ORIENTATIONS)
-        .map(|(_, k)| k)
-        .collect()
+}
+
+/// The coarse ranking [`best_fit_with_rotation`] starts from: `(coarse minimum, k)` per
+/// orientation `2πk/n + phi`, lowest first; empty when the pattern has no reduced copy.
+pub fn coarse_ranking(
+    texture: &PatternTexture,
+    mask: &Mask,
+    patch_bbox_px: [[f32; 2]; 2],
+    phi: f32,
+) -> Vec<(f32, usize)> {
+    let n = texture.orientations();
+    let alpha = |k: usize| std::f32::consts::TAU * k as f32 / n as f32 + phi;
+    match texture.coarse() {
+        Some((coarse, s)) => coarse_scores(coarse, s, mask, patch_bbox_px, &alpha),
+        None => Vec::new(),
+    }
 }
 
 /// The mask's support cells merged per `s × s` block of mask cells, in reduced pixels: weight =
