@@ -266,11 +266,11 @@ fn reduced_cells(mask: &Mask, s: usize) -> Vec<Cell> {
         let (i, j, c) = cell;
         let b = &mut blocks[(j / s) * bw + i / s];
         b.0 += c.weight;
-        for k in 0..3 {
-            b.1[k] += c.weight * c.colour[k];
+        for (sum, v) in b.1.iter_mut().zip(c.colour) {
+            *sum += c.weight * v;
         }
-        for k in 0..2 {
-            b.2[k] += c.weight * c.frame[k];
+        for (sum, v) in b.2.iter_mut().zip(c.frame) {
+            *sum += c.weight * v;
         }
     }
     let inv_s = 1.0 / s as f32;

@@ -422,7 +422,8 @@ fn split_quality(faces: &[u32], surface: &Surface, topo: &Topology, k: usize, s:
     }
     controls
         .iter()
-        .map(|c| control_quality(c))
+        .map(Vec::as_slice)
+        .map(control_quality)
         .fold(f32::INFINITY, f32::min)
 }
 
@@ -435,9 +436,9 @@ pub fn control_quality(points: &[[f32; 3]]) -> f32 {
     }
     let sub = |a: [f32; 3], b: [f32; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
     let (mut dmin, mut dmax) = (f32::INFINITY, 0.0f32);
-    for i in 0..p.len() {
-        for j in i + 1..p.len() {
-            let d = dist(p[i], p[j]);
+    for (i, a) in p.iter().enumerate() {
+        for b in &p[i + 1..] {
+            let d = dist(*a, *b);
             dmin = dmin.min(d);
             dmax = dmax.max(d);
         }
@@ -446,10 +447,10 @@ pub fn control_quality(points: &[[f32; 3]]) -> f32 {
         return 0.0;
     }
     let mut area = 0.0f32;
-    for i in 0..p.len() {
-        for j in i + 1..p.len() {
-            for l in j + 1..p.len() {
-                let (a, b) = (sub(p[j], p[i]), sub(p[l], p[i]));
+    for (i, o) in p.iter().enumerate() {
+        for (j, q) in p.iter().enumerate().skip(i + 1) {
+            for r in &p[j + 1..] {
+                let (a, b) = (sub(*q, *o), sub(*r, *o));
                 let c = [
                     a[1] * b[2] - a[2] * b[1],
                     a[2] * b[0] - a[0] * b[2],
