@@ -83,7 +83,11 @@ pub const COARSE_KEPT_VARIANCE: f32 = 0.8;
 pub fn coarse_factor(w: usize, h: usize) -> usize {
     let mut s = MAX_COARSE_FACTOR;
     while s > 1 {
-        if w % s == 0 && h % s == 0 && w / s >= COARSE_MIN_SIDE && h / s >= COARSE_MIN_SIDE {
+        if w.is_multiple_of(s)
+            && h.is_multiple_of(s)
+            && w / s >= COARSE_MIN_SIDE
+            && h / s >= COARSE_MIN_SIDE
+        {
             return s;
         }
         s /= 2;
