@@ -1,7 +1,7 @@
 //! `retex bench --method pattern`: times the `pattern` method (Soler et al. 2002) on a 5-10k-face
 //! mesh and on a large general mesh with a 256² tileable pattern, stage by stage from the job
-//! report's stage timings (measured by `Control`), with the FFT fits and clusters per level from
-//! the method's report, against the issue's aims on two cores. Prints Markdown for the README.
+//! report's stage timings (measured by `Control`), with the FFT fits and clusters per level and
+//! the mean seam error (random placement ≈ 1) from the method's report, against the issue's aims on two cores. Prints Markdown for the README.
 
 use std::path::Path;
 
@@ -63,8 +63,8 @@ const CASES: [(&str, &str, &str); 2] = [
 /// A missing asset or a failed transfer, as a message.
 pub fn run(assets: &Path, runs: usize) -> Result<(), String> {
     let png = pattern_png();
-    println!("| mesh | faces | FFT fits | patches | clusters per level (considered / textured) | method | whole transfer | aim (issue 12, 2 cores) |");
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("| mesh | faces | FFT fits | patches | clusters per level (considered / textured / fits) | seam error | method | whole transfer | aim (issue 12, 2 cores) |");
+    println!("|---|---|---|---|---|---|---|---|---|");
     for (label, rel, aim) in CASES {
         let (main, blobs) =
             BlobSet::from_path(&assets.join(rel)).map_err(|e| format!("{rel}: {e}"))?;
@@ -107,16 +107,17 @@ pub fn run(assets: &Path, runs: usize) -> Result<(), String> {
             .map(|l| {
                 l.iter()
                     .filter(|x| x["clusters"].as_u64().unwrap_or(0) > 0)
-                    .map(|x| format!("{}/{}", x["clusters"], x["textured"]))
+                    .map(|x| format!("{}/{}/{}", x["clusters"], x["textured"], x["fits"]))
                     .collect()
             })
             .unwrap_or_default();
         println!(
-            "| {label} | {} | {} | {} | {} | {:.2} s | {:.2} s | {aim} |",
+            "| {label} | {} | {} | {} | {} | {:.2} | {:.2} s | {:.2} s | {aim} |",
             last["faces"],
             d["fits"],
             d["patches"],
             levels.join(", "),
+            last["mean_seam_error"].as_f64().unwrap_or(f64::NAN),
             median(method_ms) / 1000.0,
             median(whole_ms) / 1000.0,
         );

@@ -48,6 +48,7 @@ mod method_seam;
 mod multires_properties;
 mod pattern;
 mod pattern_fit;
+mod pattern_hierarchy;
 mod preview;
 mod project_transfer;
 mod ray_features;

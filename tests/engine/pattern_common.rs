@@ -449,3 +449,92 @@ pub fn cube(mesh: &MeshData, scale: f64) -> UvMesh {
     }
     m
 }
+
+/// Orientation coherence across seams for a pattern whose stripes run along the image's u axis
+/// ([`stripes_png`]): per face, the 3-D direction that the UV map sends to (1, 0) (the first
+/// column of `E Δ⁻¹`, `E` the face's edge vectors, `Δ` its UV edges); across every seam edge
+/// (the two faces' output vertices differ), the angle between the two faces' stripe axes, each
+/// measured from the shared edge in its own face's plane (so the dihedral bend does not count)
+/// and compared modulo 180° (a stripe is an axis). Returns the edge-length-weighted mean angle in
+/// degrees (random axes score 45) and the number of seam edges.
+pub fn stripe_seam_angle(m: &UvMesh) -> (f64, usize) {
+    use std::collections::HashMap;
+    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let cross = |a: [f64; 3], b: [f64; 3]| {
+        [
+            a[1] * b[2] - a[2] * b[1],
+            a[2] * b[0] - a[0] * b[2],
+            a[0] * b[1] - a[1] * b[0],
+        ]
+    };
+    // Stripe direction and unit normal per face (None when the UV map is degenerate).
+    let frames: Vec<Option<([f64; 3], [f64; 3])>> = (0..m.positions.len())
+        .map(|f| {
+            let p = m.positions[f];
+            let u = m.uvs[f];
+            let (e1, e2) = (sub(p[1], p[0]), sub(p[2], p[0]));
+            let (a, b) = (
+                [u[1][0] - u[0][0], u[1][1] - u[0][1]],
+                [u[2][0] - u[0][0], u[2][1] - u[0][1]],
+            );
+            let det = a[0] * b[1] - b[0] * a[1];
+            let n = cross(e1, e2);
+            let nl = dot(n, n).sqrt();
+            if det.abs() < 1e-300 || nl < 1e-300 {
+                return None;
+            }
+            // Δ⁻¹ · (1, 0) = (b[1], −a[1]) / det; direction = E · that.
+            let (x, y) = (b[1] / det, -a[1] / det);
+            let d = [0, 1, 2].map(|k| e1[k] * x + e2[k] * y);
+            Some((d, n.map(|c| c / nl)))
+        })
+        .collect();
+    let mut edges: HashMap<(u64, u64), Vec<(usize, usize)>> = HashMap::new();
+    for (f, k) in m.keys.iter().enumerate() {
+        for e in 0..3 {
+            let (a, b) = (k[e], k[(e + 1) % 3]);
+            edges.entry((a.min(b), a.max(b))).or_default().push((f, e));
+        }
+    }
+    let (mut sum, mut total, mut count) = (0.0, 0.0, 0usize);
+    for ((ka, _), sides) in edges {
+        if sides.len() != 2 {
+            continue;
+        }
+        let (f, e) = sides[0];
+        let (g, d) = sides[1];
+        let corner = |f: usize, e: usize, key: u64| {
+            let a = if m.keys[f][e] == key { e } else { (e + 1) % 3 };
+            m.ids[f][a]
+        };
+        let other = |f: usize, e: usize| {
+            if m.keys[f][e] == ka {
+                (e + 1) % 3
+            } else {
+                e
+            }
+        };
+        let same_a = corner(f, e, ka) == corner(g, d, ka);
+        let same_b = m.ids[f][other(f, e)] == m.ids[g][other(g, d)];
+        if same_a && same_b {
+            continue;
+        }
+        let (Some((df, nf)), Some((dg, ng))) = (frames[f], frames[g]) else {
+            continue;
+        };
+        let p = m.positions[f];
+        let edge = sub(p[(e + 1) % 3], p[e]);
+        let len = dot(edge, edge).sqrt();
+        if len < 1e-300 {
+            continue;
+        }
+        let angle = |d: [f64; 3], n: [f64; 3]| dot(d, cross(n, edge)).atan2(dot(d, edge));
+        let diff = (angle(df, nf) - angle(dg, ng)).rem_euclid(std::f64::consts::PI);
+        let diff = diff.min(std::f64::consts::PI - diff);
+        sum += len * diff.to_degrees();
+        total += len;
+        count += 1;
+    }
+    (if total > 0.0 { sum / total } else { 0.0 }, count)
+}

@@ -8,7 +8,8 @@
 
 use retex::engine::asset::DecodedImage;
 use retex::engine::methods::pattern::fit::{
-    best_fit, best_fit_with_rotation, error_image, placement_error, rotate, Placement,
+    best_fit, best_fit_with_rotation, coarse_ranking, error_image, placement_error, rotate,
+    Placement,
 };
 use retex::engine::methods::pattern::mask::{rasterise_mask, Mask, MaskTriangle};
 use retex::engine::methods::pattern::relax::{relax, Corner, RelaxProblem, SeamEdge};
@@ -181,6 +182,15 @@ fn plant_and_fit(
     let truth = centred(p.placement, side);
     let mask = rasterise_mask(texture, &band_triangles(side, band, sides, &truth));
     let bbox = [[0.0, 0.0], [side, side]];
+    let ranking = coarse_ranking(texture, &mask, bbox, p.phi);
+    if let Some(rank) = ranking.iter().position(|(_, k)| *k == p.k) {
+        let (best, median) = (ranking[0].0, ranking[ranking.len() / 2].0);
+        println!(
+            "coarse rank of the planted orientation {rank} of {}: margin position {:.3}",
+            ranking.len(),
+            (ranking[rank].0 - best) / (median - best).max(1e-12)
+        );
+    }
     let fit = best_fit_with_rotation(texture, &mask, bbox, p.phi).expect("a fit");
     let period = texture.toroidal().then_some(size);
     let centre = [side / 2.0, side / 2.0];

@@ -4,7 +4,9 @@
 //!    `first_face` when given (in its component), else the largest flat-enough cluster of the
 //!    coarsest level that has one. It is placed at the user's scale and orientation: the
 //!    target's up axis (+y) projected onto the surface points to the image's top, turned by
-//!    `orientation_deg`, the patch centred on the image.
+//!    `orientation_deg`, the patch centred on the image. With a non-toroidal pattern a cluster
+//!    that does not fit inside the image that way is split instead (its children are tried at
+//!    the next level); only a single face can still overflow, and the output clamps its UVs.
 //! 2. Level by level from the roots, a priority queue by the number of already-textured
 //!    neighbour patches. A cluster that is not a disc, not flat enough, partly textured, or
 //!    whose best fit (after relaxation) is above `fit_threshold`, is split into its children
@@ -149,8 +151,8 @@ pub fn run(input: &DriverInput<'_>, control: &Control) -> Result<DriverOutput, C
     };
     let stage = control.stage("driver", nf as u64)?;
     if let Some(f) = input.first_face {
-        if let Some((c, flat)) = coarsest_flat_ancestor(&st, f) {
-            place_fresh(&mut st, c, &flat, true);
+        if let Some((c, flat, px)) = coarsest_flat_ancestor(&st, f) {
+            place_fresh(&mut st, c, &flat, px, true);
         }
     }
     let mut current: Vec<u32> = h.roots.clone();
@@ -175,8 +177,9 @@ pub fn run(input: &DriverInput<'_>, control: &Control) -> Result<DriverOutput, C
     })
 }
 
-/// The coarsest ancestor of `face` that is a flat-enough disc.
-fn coarsest_flat_ancestor(st: &State<'_>, face: u32) -> Option<(u32, Flat)> {
+/// The coarsest ancestor of `face` that is a flat-enough disc and, placed fresh, fits the image
+/// (a leaf always does), with its fresh placement.
+fn coarsest_flat_ancestor(st: &State<'_>, face: u32) -> Option<(u32, Flat, Vec<[f32; 2]>)> {
     let h = st.input.hierarchy;
     let mut chain = vec![h.face_leaf[face as usize]];
     while let Some(p) = h.clusters[*chain.last()? as usize].parent {
@@ -184,7 +187,8 @@ fn coarsest_flat_ancestor(st: &State<'_>, face: u32) -> Option<(u32, Flat)> {
     }
     chain.into_iter().rev().find_map(|c| {
         let flat = flat_enough(st, c)?;
-        Some((c, flat))
+        let px = fresh_px(st, c, &flat)?;
+        Some((c, flat, px))
     })
 }
 
@@ -239,8 +243,14 @@ fn run_level(st: &mut State<'_>, current: &[u32], ls: &mut LevelStats) -> Vec<u3
     for (c, flat) in ready {
         let comp = h.clusters[c as usize].component as usize;
         if st.component_patches[comp] == 0 {
-            place_fresh(st, c, &flat, true);
-            ls.textured += 1;
+            if let Some(px) = fresh_px(st, c, &flat) {
+                place_fresh(st, c, &flat, px, true);
+                ls.textured += 1;
+            } else {
+                ls.too_large += 1;
+                ls.split += 1;
+                next.extend_from_slice(&h.clusters[c as usize].children);
+            }
         } else {
             rest.push((c, flat));
         }
@@ -300,8 +310,14 @@ fn run_level(st: &mut State<'_>, current: &[u32], ls: &mut LevelStats) -> Vec<u3
         }
         if let Some((_, k, c)) = heap.pop() {
             if let Some(flat) = flats[k].take() {
-                place_fresh(st, c, &flat, false);
-                ls.textured += 1;
+                if let Some(px) = fresh_px(st, c, &flat) {
+                    place_fresh(st, c, &flat, px, false);
+                    ls.textured += 1;
+                } else {
+                    ls.too_large += 1;
+                    ls.split += 1;
+                    next.extend_from_slice(&h.clusters[c as usize].children);
+                }
             }
         }
     }
@@ -393,8 +409,11 @@ fn frame_up(st: &State<'_>, c: u32, flat: &Flat) -> [f64; 2] {
     [fa[0] * l[0] + fb[0] * l[1], fa[1] * l[0] + fb[1] * l[1]]
 }
 
-/// Places a cluster at the user's scale and orientation, centred on the image.
-fn place_fresh(st: &mut State<'_>, c: u32, flat: &Flat, first: bool) {
+/// The pattern pixels of a cluster placed at the user's scale and orientation, centred on the
+/// image. For a non-toroidal pattern a cluster that does not fit inside the image gives `None`
+/// (the caller splits it, §4.2: the patch must stay inside); a leaf always gets its placement
+/// (a single face larger than the image cannot be split: the output clamps its UVs and warns).
+fn fresh_px(st: &State<'_>, c: u32, flat: &Flat) -> Option<Vec<[f32; 2]>> {
     let ppw = st.px_per_world;
     let up = frame_up(st, c, flat);
     let phi = f64::from(st.input.params.orientation_deg).to_radians();
@@ -412,17 +431,22 @@ fn place_fresh(st: &mut State<'_>, c: u32, flat: &Flat, first: bool) {
     };
     let rc = zero.apply([centre[0] as f32, centre[1] as f32]);
     let tex = st.input.texture;
+    let (w, h) = (tex.width() as f32, tex.height() as f32);
     let placement = Placement {
         rotation,
-        translation_px: [
-            tex.width() as f32 / 2.0 - rc[0],
-            tex.height() as f32 / 2.0 - rc[1],
-        ],
+        translation_px: [w / 2.0 - rc[0], h / 2.0 - rc[1]],
     };
-    let px = frame_px(flat, ppw)
+    let px: Vec<[f32; 2]> = frame_px(flat, ppw)
         .into_iter()
         .map(|p| placement.apply(p))
         .collect();
+    let inside = |p: &[f32; 2]| (0.0..=w).contains(&p[0]) && (0.0..=h).contains(&p[1]);
+    let fits = tex.toroidal() || st.input.hierarchy.is_leaf(c) || px.iter().all(inside);
+    fits.then_some(px)
+}
+
+/// Accepts a cluster placed by [`fresh_px`].
+fn place_fresh(st: &mut State<'_>, c: u32, flat: &Flat, px: Vec<[f32; 2]>, first: bool) {
     if first {
         st.stats.first_patches += 1;
     } else {
@@ -482,7 +506,9 @@ fn try_fit(st: &mut State<'_>, c: u32, flat: &Flat, ls: &mut LevelStats) -> bool
     ls.fits += 1;
     let Some(fit) = best_fit(st.input.texture, &mask, bbox_px) else {
         if leaf {
-            place_fresh(st, c, flat, false);
+            if let Some(px) = fresh_px(st, c, flat) {
+                place_fresh(st, c, flat, px, false);
+            }
             return true;
         }
         ls.fit_rejected += 1;

@@ -16,8 +16,19 @@
 //! neighbours. A cluster is a disc when its Euler characteristic is 1 and every border vertex
 //! has exactly two border edges; clusters that are not discs are never flattened, only split.
 //!
-//! Not implemented: re-drawing seeds when a cluster's control vertices are nearly aligned (the
-//! flattening here does not use the control polygon, see [`super::flatten`]).
+//! **Seed re-draw** (§3.1: seeds are re-drawn when the control vertices are nearly aligned). After
+//! a split, each region's control vertices *within the parent* are found (vertices where at least
+//! three of {the sibling regions, everything outside the parent, an open boundary} meet). The
+//! split's quality is the smallest over its regions of
+//! `min(A / (ALIGN_MIN · d_max²), d_min / (CLOSE_MIN · d_max))`, with `A` the largest triangle
+//! spanned by three of the region's control vertices and `d_min`, `d_max` their closest and
+//! farthest pair: 0 for fewer than three control vertices, for collinear ones or for two that
+//! coincide. Below 1 the seeds are drawn again, at most [`SEED_DRAWS`] times in all, and the best
+//! split is kept. Constants the paper does not publish: [`ALIGN_MIN`] = 0.05 (an equilateral
+//! triangle scores 0.43, one whose height is a tenth of its base 0.05) and [`CLOSE_MIN`] = 0.05.
+//! The flattening here does not use the control polygon ([`super::flatten`]), so the re-draw
+//! only keeps the clusters' shapes compact, as in the paper; the number of re-drawn splits is
+//! [`Hierarchy::seed_redraws`].
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -31,6 +42,16 @@ pub const NONE: u32 = u32::MAX;
 
 /// Passes of border regularisation per split.
 const REGULARISE_PASSES: usize = 3;
+
+/// Seed draws per split at most (module doc: seed re-draw).
+pub const SEED_DRAWS: usize = 4;
+
+/// Largest control triangle / farthest control pair² below which control vertices are "nearly
+/// aligned".
+pub const ALIGN_MIN: f32 = 0.05;
+
+/// Closest / farthest control pair below which two control vertices are "too close".
+pub const CLOSE_MIN: f32 = 0.05;
 
 /// One cluster of faces.
 #[derive(Clone, Debug, Default)]
@@ -66,6 +87,8 @@ pub struct Hierarchy {
     pub face_leaf: Vec<u32>,
     /// Clusters per level.
     pub per_level: Vec<usize>,
+    /// Splits whose seeds were drawn more than once (module doc: seed re-draw).
+    pub seed_redraws: usize,
 }
 
 impl Hierarchy {
@@ -159,7 +182,17 @@ pub fn build(
         let parts = if faces.len() <= children {
             faces.iter().map(|f| vec![*f]).collect()
         } else {
-            split(&faces, topo, &centroids, children, &mut rng, &mut scratch)
+            let (parts, draws, _) = split(
+                &faces,
+                surface,
+                topo,
+                &centroids,
+                (children, SEED_DRAWS),
+                &mut rng,
+                &mut scratch,
+            );
+            h.seed_redraws += usize::from(draws > 1);
+            parts
         };
         for mut part in parts {
             part.sort_unstable();
@@ -208,19 +241,101 @@ fn dist(a: [f32; 3], b: [f32; 3]) -> f32 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
-/// Splits a connected set of faces into about `k` connected regions of near-uniform size.
+/// Splits a connected set of faces into about `k` connected regions of near-uniform size,
+/// drawing the seeds again while the control vertices are degenerate (module doc); returns the
+/// regions, the number of draws and the kept split's quality. `(k, max_draws)`.
 fn split(
+    faces: &[u32],
+    surface: &Surface,
+    topo: &Topology,
+    centroids: &[[f32; 3]],
+    (k, max_draws): (usize, usize),
+    rng: &mut SplitMix64,
+    s: &mut Scratch,
+) -> (Vec<Vec<u32>>, usize, f32) {
+    s.stamp += 1;
+    let stamp = s.stamp;
+    for f in faces {
+        s.in_set[*f as usize] = stamp;
+    }
+    let mut best: Option<(f32, Vec<u32>)> = None;
+    let mut draws = 0;
+    while draws < max_draws.max(1) {
+        draws += 1;
+        grow(faces, topo, centroids, k, rng, s);
+        let quality = split_quality(faces, surface, topo, k, s);
+        if best.as_ref().is_none_or(|b| quality > b.0) {
+            best = Some((
+                quality,
+                faces.iter().map(|f| s.region[*f as usize]).collect(),
+            ));
+        }
+        if quality >= 1.0 {
+            break;
+        }
+    }
+    let mut quality = 0.0;
+    if let Some((q, regions)) = best {
+        quality = q;
+        for (f, r) in faces.iter().zip(regions) {
+            s.region[*f as usize] = r;
+        }
+    }
+    let mut out = vec![Vec::new(); k];
+    for f in faces {
+        let r = s.region[*f as usize];
+        if r != NONE {
+            out[r as usize].push(*f);
+        }
+    }
+    out.retain(|p| !p.is_empty());
+    (out, draws, quality)
+}
+
+/// One split of `faces` (a connected set) into `k` regions with at most `max_draws` seed draws,
+/// as [`build`] does it with [`SEED_DRAWS`]: `(regions, draws, quality)` (module doc).
+pub fn split_faces(
+    surface: &Surface,
+    topo: &Topology,
+    faces: &[u32],
+    k: usize,
+    max_draws: usize,
+    seed: u64,
+) -> (Vec<Vec<u32>>, usize, f32) {
+    let nf = surface.face_count();
+    if k == 0 || faces.len() < k || faces.iter().any(|f| *f as usize >= nf) {
+        return (vec![faces.to_vec()], 0, 0.0);
+    }
+    let centroids: Vec<[f32; 3]> = (0..nf)
+        .map(|f| {
+            let p = surface.face_positions(f);
+            [0, 1, 2].map(|c| (p[0][c] + p[1][c] + p[2][c]) / 3.0)
+        })
+        .collect();
+    let mut rng = SplitMix64::new(seed);
+    let mut scratch = Scratch::new(nf);
+    split(
+        faces,
+        surface,
+        topo,
+        &centroids,
+        (k, max_draws),
+        &mut rng,
+        &mut scratch,
+    )
+}
+
+/// One draw: `k` random seeds grown together, the smallest region first, then regularised.
+fn grow(
     faces: &[u32],
     topo: &Topology,
     centroids: &[[f32; 3]],
     k: usize,
     rng: &mut SplitMix64,
     s: &mut Scratch,
-) -> Vec<Vec<u32>> {
-    s.stamp += 1;
+) {
     let stamp = s.stamp;
     for f in faces {
-        s.in_set[*f as usize] = stamp;
         s.region[*f as usize] = NONE;
     }
     // Distinct random seeds.
@@ -265,15 +380,87 @@ fn split(
         }
     }
     regularise(faces, topo, s, &mut size);
-    let mut out = vec![Vec::new(); k];
-    for f in faces {
-        let r = s.region[*f as usize];
-        if r != NONE {
-            out[r as usize].push(*f);
+}
+
+/// The smallest [`control_quality`] over the regions of the current split (`s.region`), with the
+/// control vertices found inside the parent (everything outside the parent and an open boundary
+/// count together as one region).
+fn split_quality(faces: &[u32], surface: &Surface, topo: &Topology, k: usize, s: &Scratch) -> f32 {
+    const OUTSIDE: u32 = NONE - 1;
+    let mut verts: Vec<u32> = faces
+        .iter()
+        .flat_map(|f| surface.faces[*f as usize])
+        .collect();
+    verts.sort_unstable();
+    verts.dedup();
+    let mut controls: Vec<Vec<[f32; 3]>> = vec![Vec::new(); k];
+    let mut around: Vec<u32> = Vec::new();
+    for v in verts {
+        around.clear();
+        for f in topo.vertex_faces(v as usize) {
+            let fi = *f as usize;
+            let inside = s.in_set[fi] == s.stamp && s.region[fi] != NONE;
+            let label = if inside { s.region[fi] } else { OUTSIDE };
+            if !around.contains(&label) {
+                around.push(label);
+            }
+            let fv = surface.faces[fi];
+            let open = (0..3).any(|e| {
+                (fv[e] == v || fv[(e + 1) % 3] == v) && topo.face_neighbors[fi][e].is_none()
+            });
+            if open && !around.contains(&OUTSIDE) {
+                around.push(OUTSIDE);
+            }
+        }
+        if around.len() >= 3 {
+            for r in &around {
+                if *r != OUTSIDE {
+                    controls[*r as usize].push(surface.positions[v as usize]);
+                }
+            }
         }
     }
-    out.retain(|p| !p.is_empty());
-    out
+    controls
+        .iter()
+        .map(Vec::as_slice)
+        .map(control_quality)
+        .fold(f32::INFINITY, f32::min)
+}
+
+/// `min(A / (ALIGN_MIN · d_max²), d_min / (CLOSE_MIN · d_max))` of a region's control vertices
+/// (module doc); 0 for fewer than three. At most the first 24 points are examined (O(n³)).
+pub fn control_quality(points: &[[f32; 3]]) -> f32 {
+    let p = &points[..points.len().min(24)];
+    if p.len() < 3 {
+        return 0.0;
+    }
+    let sub = |a: [f32; 3], b: [f32; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    let (mut dmin, mut dmax) = (f32::INFINITY, 0.0f32);
+    for (i, a) in p.iter().enumerate() {
+        for b in &p[i + 1..] {
+            let d = dist(*a, *b);
+            dmin = dmin.min(d);
+            dmax = dmax.max(d);
+        }
+    }
+    if dmax <= 0.0 || !dmax.is_finite() {
+        return 0.0;
+    }
+    let mut area = 0.0f32;
+    for (i, o) in p.iter().enumerate() {
+        for (j, q) in p.iter().enumerate().skip(i + 1) {
+            for r in &p[j + 1..] {
+                let (a, b) = (sub(*q, *o), sub(*r, *o));
+                let c = [
+                    a[1] * b[2] - a[2] * b[1],
+                    a[2] * b[0] - a[0] * b[2],
+                    a[0] * b[1] - a[1] * b[0],
+                ];
+                area = area.max(0.5 * (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt());
+            }
+        }
+    }
+    (area / (ALIGN_MIN * dmax * dmax)).min(dmin / (CLOSE_MIN * dmax))
 }
 
 /// Border regularisation by exchanging triangles (see the module doc).

@@ -196,6 +196,7 @@ pub fn run(
         faces: surface.face_count(),
         components: hierarchy.roots.len(),
         hierarchy_levels: hierarchy.per_level.clone(),
+        seed_redraws: hierarchy.seed_redraws,
         mean_seam_error: seam.map_or(0.0, |s| s / out.stats.random_pair_error),
         driver: out.stats,
         output_vertices: written.vertices,

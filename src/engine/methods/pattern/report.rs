@@ -23,6 +23,8 @@ pub struct LevelStats {
     pub fit_rejected: usize,
     /// Left for the next level (no textured neighbour yet).
     pub deferred: usize,
+    /// Split because, placed like a first patch, they do not fit inside a non-toroidal image.
+    pub too_large: usize,
     /// FFT best-fit searches.
     pub fits: usize,
 }
@@ -106,6 +108,9 @@ pub struct PatternReport {
     pub components: usize,
     /// Hierarchy clusters per level.
     pub hierarchy_levels: Vec<usize>,
+    /// Splits of the hierarchy whose seeds were drawn more than once (control vertices nearly
+    /// aligned or too close).
+    pub seed_redraws: usize,
     /// The driver.
     pub driver: DriverStats,
     /// Mean seam error along patch borders: the colour difference across each seam edge
