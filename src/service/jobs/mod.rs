@@ -1,4 +1,5 @@
 //! Jobs: the runner that claims jobs from the store and executes them on the engine's rayon
 //! pool ([`runner`]). Engine errors become problems through [`crate::service::problem_table`].
 
+pub mod preview;
 pub mod runner;

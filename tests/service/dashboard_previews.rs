@@ -1,0 +1,106 @@
+//! Issue 16, part 1: every succeeded job stores turntable previews of its result and inputs as
+//! artifacts, served with ETags; the preview stage is counted in the job's progress and timed in
+//! its report.
+
+use std::time::Duration;
+
+use crate::service_common::*;
+
+/// Decodes a PNG answer and checks it shows a model: every view of the strip has a share of
+/// non-background pixels and the image is not one flat colour.
+fn assert_turntable(body: &[u8], views: u32, size: u32, what: &str) {
+    let img = image::load_from_memory(body)
+        .unwrap_or_else(|e| panic!("{what}: not a PNG: {e}"))
+        .to_rgb8();
+    assert_eq!(img.dimensions(), (views * size, size), "{what}");
+    // The renderer's background is sRGB 231 grey.
+    let bg = |p: &image::Rgb<u8>| p.0.iter().all(|&c| c.abs_diff(231) <= 1);
+    for v in 0..views {
+        let mut covered = 0u32;
+        for y in 0..size {
+            for x in v * size..(v + 1) * size {
+                covered += u32::from(!bg(img.get_pixel(x, y)));
+            }
+        }
+        let share = covered as f64 / (size * size) as f64;
+        // Spot fills about a third of each view; an empty or clipped render fails this.
+        assert!(
+            (0.1..0.9).contains(&share),
+            "{what}: view {v} covers {share:.3}"
+        );
+    }
+    let n = (img.width() * img.height()) as f64;
+    let lum: Vec<f64> = img
+        .pixels()
+        .map(|p| 0.299 * p.0[0] as f64 + 0.587 * p.0[1] as f64 + 0.114 * p.0[2] as f64)
+        .collect();
+    let mean = lum.iter().sum::<f64>() / n;
+    let var = lum.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / n;
+    assert!(var > 100.0, "{what}: luminance variance {var:.1}");
+}
+
+#[test]
+fn a_succeeded_job_serves_its_previews_with_etags() {
+    let s = TestServer::start(|_| {});
+    let r = submit(&s.base, &spot_parts(256), &[]);
+    assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+    let id = r.json()["id"].as_str().unwrap().to_string();
+    let doc = wait_for(&s.base, &id, Duration::from_secs(120), terminal);
+    assert_eq!(doc["status"], "succeeded", "{doc}");
+
+    let names: Vec<&str> = doc["links"]["artifacts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|a| a["name"].as_str().unwrap())
+        .collect();
+    for want in ["preview.png", "source_preview.png", "target_preview.png"] {
+        assert!(names.contains(&want), "{want} missing from {names:?}");
+    }
+    // The preview stages ran after the method and are counted and timed.
+    let stages = &doc["progress"]["stages"];
+    assert_eq!(stages["done"], stages["total"], "{doc}");
+    assert_eq!(doc["progress"]["fraction"], 1.0, "{doc}");
+    let timed: Vec<&str> = doc["report"]["timings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["stage"].as_str().unwrap())
+        .collect();
+    let at = timed.iter().position(|t| *t == "preview: result");
+    let export = timed.iter().position(|t| *t == "export");
+    assert!(at.is_some() && export < at, "{timed:?}");
+    let warnings = doc["report"]["warnings"].as_array().unwrap();
+    assert!(
+        warnings
+            .iter()
+            .all(|w| !w.as_str().unwrap().starts_with("preview")),
+        "{warnings:?}"
+    );
+
+    let url = format!("{}/v1/jobs/{id}/artifacts/preview.png", s.base);
+    let r = get(&url);
+    assert_eq!(r.status, 200);
+    assert_eq!(r.header("content-type"), Some("image/png"));
+    assert_turntable(&r.body, 4, 256, "preview.png");
+    let etag = r.header("etag").expect("an ETag").to_string();
+    let again = request("GET", &url, &[("If-None-Match", &etag)], None);
+    assert_eq!(again.status, 304);
+    assert!(again.body.is_empty());
+
+    for name in ["source_preview.png", "target_preview.png"] {
+        let r = get(&format!("{}/v1/jobs/{id}/artifacts/{name}", s.base));
+        assert_eq!(r.status, 200, "{name}");
+        assert_turntable(&r.body, 4, 128, name);
+    }
+    // report.json carries the preview timings too.
+    let report = get(&format!("{}/v1/jobs/{id}/artifacts/report.json", s.base)).json();
+    assert!(
+        report["timings"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|t| t["stage"] == "preview: target"),
+        "{report}"
+    );
+}
