@@ -170,14 +170,18 @@ async function main() {
     const dims = await page.$eval('#preview-result', (i) => [i.naturalWidth, i.naturalHeight]);
     if (dims[0] !== 1024 || dims[1] !== 256) throw new Error(`preview is ${dims}`);
     await page.waitForFunction(() => document.querySelector('#viewer')?.loaded === true, null, { timeout: 60000 });
-    // Let it draw a few frames, then read the rendered image back.
-    await page.waitForTimeout(1500);
-    const view = await page.evaluate(async () => {
-      const v = document.querySelector('#viewer');
-      const url = v.toDataURL('image/png');
-      return url.slice(url.indexOf(',') + 1);
-    });
-    const st = await pngStats(page, Buffer.from(view, 'base64'));
+    // Read the rendered image back until a frame has been drawn (SwiftShader under load can take
+    // a few seconds for the first one).
+    let st;
+    for (let i = 0; i < 60; i++) {
+      const view = await page.evaluate(() => {
+        const url = document.querySelector('#viewer').toDataURL('image/png');
+        return url.slice(url.indexOf(',') + 1);
+      });
+      st = await pngStats(page, Buffer.from(view, 'base64'));
+      if (st.variance > 20 && st.varied > 0.05) break;
+      await page.waitForTimeout(500);
+    }
     if (!(st.variance > 20 && st.varied > 0.05)) throw new Error(`3D view looks blank: ${JSON.stringify(st)}`);
     const viewerShot = await shot(page, 'viewer', page.locator('#viewer'));
     await shot(page, 'job-page');
@@ -185,10 +189,13 @@ async function main() {
     for (const want of ['preview.png', 'report.json']) if (!files.includes(want)) throw new Error(`no download ${want} in ${files}`);
     const constraints = JSON.parse(await page.textContent('#job-constraints'));
     if (constraints.method !== 'project' || constraints.output?.texture_size !== 512) throw new Error(`constraints ${JSON.stringify(constraints)}`);
-    return `job ${id.slice(0, 8)}, canvas variance ${st.variance.toFixed(0)}, ${(st.varied * 100).toFixed(0)} % off-background (screenshot ${viewerShot.variance.toFixed(0)})`;
+    const timings = await page.$$eval('#job-timings tr', (rs) => rs.map((r) => [r.cells[0].textContent, parseFloat(r.cells[1].textContent)]));
+    const previewMs = timings.filter(([k]) => k.startsWith('preview')).reduce((a, [, v]) => a + v, 0);
+    const totalMs = timings.reduce((a, [, v]) => a + v, 0);
+    return `job ${id.slice(0, 8)}, previews ${previewMs.toFixed(0)} of ${totalMs.toFixed(0)} ms, canvas variance ${st.variance.toFixed(0)}, ${(st.varied * 100).toFixed(0)} % off-background (screenshot ${viewerShot.variance.toFixed(0)})`;
   });
 
-  await step('job list: newest first, status filter, phone layout', async () => {
+  await step('job list: status filter, phone layout', async () => {
     await page.goto(`${server.base}/#/`);
     await page.waitForSelector('#job-rows tr[data-status=succeeded]');
     await page.selectOption('#filter-status', 'failed');
@@ -222,7 +229,7 @@ async function main() {
     return server.slice(0, 90);
   });
 
-  await step('cancel a slow meshmatch job', async () => {
+  await step('cancel a slow meshmatch job, then delete it', async () => {
     await fillForm(page, 'meshmatch');
     await page.fill(`${param('samples')} input`, '262144');
     await page.fill(`${param('iterations')} input`, '100');
@@ -232,6 +239,12 @@ async function main() {
     await page.click('#job-cancel');
     await page.waitForFunction(() => document.querySelector('#job-status')?.textContent === 'canceled', null, { timeout: 20000 });
     await shot(page, 'canceled');
+    // Delete (the confirm dialog is accepted): back to the list, and the job is gone.
+    const id = page.url().split('/').pop();
+    await page.click('#job-delete');
+    await page.waitForFunction(() => location.hash === '#/', null, { timeout: 10000 });
+    const gone = await page.evaluate(async (u) => (await fetch(u)).status, `/v1/jobs/${id}`);
+    if (gone !== 404) throw new Error(`deleted job answers ${gone}`);
   });
 
   await context.close();

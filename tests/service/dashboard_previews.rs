@@ -4,6 +4,12 @@
 
 use std::time::Duration;
 
+use retex::engine::asset::{BlobSet, IngestLimits};
+use retex::engine::control::Control;
+use retex::service::jobs::preview::{
+    amend_report, combined_progress, render_previews, PreviewInput, ENGINE_SHARE,
+};
+
 use crate::service_common::*;
 
 /// Decodes a PNG answer and checks it shows a model: every view of the strip has a share of
@@ -103,4 +109,68 @@ fn a_succeeded_job_serves_its_previews_with_etags() {
             .any(|t| t["stage"] == "preview: target"),
         "{report}"
     );
+}
+
+#[test]
+fn a_model_that_does_not_load_is_a_warning_and_the_stage_still_finishes() {
+    let mut blobs = BlobSet::new();
+    blobs.insert("m.glb", b"not a glb at all".to_vec());
+    let inputs = [PreviewInput {
+        artifact: "preview.png",
+        stage: "preview: result",
+        main: "m.glb",
+        blobs: &blobs,
+        views: 2,
+        size: 32,
+    }];
+    let control = Control::new();
+    let out = render_previews(&inputs, &IngestLimits::default(), &control, || false).unwrap();
+    assert!(out.files.is_empty());
+    assert_eq!(out.warnings.len(), 1);
+    assert!(
+        out.warnings[0].starts_with("preview: preview.png"),
+        "{:?}",
+        out.warnings
+    );
+    let p = control.progress();
+    assert_eq!((p.stages_done, p.stages_total), (1, 1));
+    assert!((p.fraction - 1.0).abs() < 1e-12);
+    let mut report = serde_json::json!({"timings": [], "warnings": ["w"]});
+    amend_report(&mut report, &control, &out.warnings);
+    assert_eq!(report["timings"][0]["stage"], "preview: result");
+    assert_eq!(report["warnings"].as_array().unwrap().len(), 2);
+}
+
+#[test]
+fn a_cancelled_job_renders_nothing() {
+    let blobs = BlobSet::new();
+    let inputs = [PreviewInput {
+        artifact: "preview.png",
+        stage: "preview: result",
+        main: "m.glb",
+        blobs: &blobs,
+        views: 2,
+        size: 32,
+    }];
+    assert!(render_previews(&inputs, &IngestLimits::default(), &Control::new(), || true).is_none());
+}
+
+#[test]
+fn progress_is_monotone_across_the_engine_and_the_previews() {
+    let engine = Control::new();
+    let preview = Control::new();
+    engine.stage("load", 0).unwrap();
+    let a = combined_progress(engine.progress(), preview.progress());
+    engine.finish();
+    let b = combined_progress(engine.progress(), preview.progress());
+    assert!((b.fraction - ENGINE_SHARE).abs() < 1e-12);
+    preview.stage("preview: result", 1).unwrap();
+    let c = combined_progress(engine.progress(), preview.progress());
+    assert_eq!(c.stage, "preview: result");
+    preview.finish();
+    let d = combined_progress(engine.progress(), preview.progress());
+    assert!(a.fraction <= b.fraction && b.fraction <= c.fraction && c.fraction < d.fraction);
+    assert!((d.fraction - 1.0).abs() < 1e-12);
+    assert_eq!(d.stages_done, d.stages_total);
+    assert_eq!(d.stages_total, 2);
 }

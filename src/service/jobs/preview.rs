@@ -29,10 +29,12 @@ pub const RESULT_SIZE: u32 = 256;
 pub const INPUT_VIEWS: u32 = 4;
 /// Pixels per input view (square).
 pub const INPUT_SIZE: u32 = 128;
-/// Share of the job's progress bar given to the engine call; the previews take the rest. The
-/// previews of the test assets take 2-5 % of a job's time (`project` at 1024 texels on Spot), so
-/// the bar does not stall at the end.
-pub const ENGINE_SHARE: f64 = 0.95;
+/// Share of the job's progress bar given to the engine call; the previews take the rest. Not
+/// proportional to time for every job: the previews cost about the same for any method (Spot onto
+/// its remesh, `project` at 512 texels, in the browser test: 254 ms of a 1287 ms job, 20 %), which
+/// is under 1 % of a minute-long meshmatch job; 0.9 keeps the bar moving in both (the stage name
+/// says what runs).
+pub const ENGINE_SHARE: f64 = 0.9;
 
 /// A model to preview: artifact name, stage name, main file name and its files.
 pub struct PreviewInput<'a> {
@@ -136,76 +138,5 @@ pub fn amend_report(report: &mut serde_json::Value, control: &Control, warnings:
         .and_then(serde_json::Value::as_array_mut)
     {
         w.extend(warnings.iter().cloned().map(serde_json::Value::from));
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_model_that_does_not_load_is_a_warning_and_the_stage_still_finishes() {
-        let mut blobs = BlobSet::new();
-        blobs.insert("m.glb", b"not a glb at all".to_vec());
-        let inputs = [PreviewInput {
-            artifact: "preview.png",
-            stage: "preview: result",
-            main: "m.glb",
-            blobs: &blobs,
-            views: 2,
-            size: 32,
-        }];
-        let control = Control::new();
-        let out = render_previews(&inputs, &IngestLimits::default(), &control, || false).unwrap();
-        assert!(out.files.is_empty());
-        assert_eq!(out.warnings.len(), 1);
-        assert!(
-            out.warnings[0].starts_with("preview: preview.png"),
-            "{:?}",
-            out.warnings
-        );
-        let p = control.progress();
-        assert_eq!((p.stages_done, p.stages_total), (1, 1));
-        assert!((p.fraction - 1.0).abs() < 1e-12);
-        let mut report = serde_json::json!({"timings": [], "warnings": ["w"]});
-        amend_report(&mut report, &control, &out.warnings);
-        assert_eq!(report["timings"][0]["stage"], "preview: result");
-        assert_eq!(report["warnings"].as_array().unwrap().len(), 2);
-    }
-
-    #[test]
-    fn a_cancelled_job_renders_nothing() {
-        let blobs = BlobSet::new();
-        let inputs = [PreviewInput {
-            artifact: "preview.png",
-            stage: "preview: result",
-            main: "m.glb",
-            blobs: &blobs,
-            views: 2,
-            size: 32,
-        }];
-        assert!(
-            render_previews(&inputs, &IngestLimits::default(), &Control::new(), || true).is_none()
-        );
-    }
-
-    #[test]
-    fn progress_is_monotone_across_the_engine_and_the_previews() {
-        let engine = Control::new();
-        let preview = Control::new();
-        engine.stage("load", 0).unwrap();
-        let a = combined_progress(engine.progress(), preview.progress());
-        engine.finish();
-        let b = combined_progress(engine.progress(), preview.progress());
-        assert!((b.fraction - ENGINE_SHARE).abs() < 1e-12);
-        preview.stage("preview: result", 1).unwrap();
-        let c = combined_progress(engine.progress(), preview.progress());
-        assert_eq!(c.stage, "preview: result");
-        preview.finish();
-        let d = combined_progress(engine.progress(), preview.progress());
-        assert!(a.fraction <= b.fraction && b.fraction <= c.fraction && c.fraction < d.fraction);
-        assert!((d.fraction - 1.0).abs() < 1e-12);
-        assert_eq!(d.stages_done, d.stages_total);
-        assert_eq!(d.stages_total, 2);
     }
 }

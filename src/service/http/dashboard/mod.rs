@@ -169,35 +169,3 @@ pub async fn index(headers: HeaderMap) -> Response {
 pub async fn file(Path(path): Path<String>, headers: HeaderMap) -> Response {
     serve(&path, &headers)
 }
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn with(value: &str) -> HeaderMap {
-        let mut h = HeaderMap::new();
-        h.insert(
-            header::ACCEPT_ENCODING,
-            HeaderValue::from_str(value).unwrap(),
-        );
-        h
-    }
-
-    #[test]
-    fn gzip_acceptance() {
-        assert!(accepts_gzip(&with("gzip, deflate, br")));
-        assert!(accepts_gzip(&with("br;q=1.0, gzip;q=0.8")));
-        assert!(accepts_gzip(&with("*")));
-        assert!(!accepts_gzip(&with("gzip;q=0")));
-        assert!(!accepts_gzip(&with("br")));
-        assert!(!accepts_gzip(&HeaderMap::new()));
-    }
-
-    #[test]
-    fn every_asset_is_embedded_and_the_library_is_gzip() {
-        for a in ASSETS {
-            assert!(!a.bytes.is_empty(), "{}", a.path);
-            assert_eq!(a.gzip, a.bytes.starts_with(&[0x1f, 0x8b]), "{}", a.path);
-        }
-    }
-}
