@@ -12,6 +12,8 @@ mod service_common;
 mod connections;
 mod contract;
 mod correlation;
+mod dashboard_previews;
+mod dashboard_routes;
 mod elastiface_inputs;
 mod fuzz_multipart;
 mod http;

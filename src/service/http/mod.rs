@@ -32,6 +32,7 @@ use crate::service::store::{BlobStore, JobStore, StoreError};
 pub mod auth;
 pub mod caller;
 pub mod conn;
+pub mod dashboard;
 pub mod deadline;
 pub mod doc;
 pub mod events;
@@ -133,6 +134,8 @@ pub fn router(state: AppState) -> Router {
         .route("/v1/jobs/{id}/artifacts/{name}", get(files::artifact))
         .route("/v1/jobs/{id}/events", get(events::events))
         .route("/v1/openapi.json", get(openapi::openapi_json))
+        .route("/v1/methods", get(dashboard::methods))
+        .route("/v1/jobs/{id}/constraints", get(dashboard::constraints))
         .route("/healthz", get(ops::healthz))
         .route("/readyz", get(ops::readyz))
         .route("/metrics", get(metrics::metrics))
@@ -155,7 +158,12 @@ pub fn router(state: AppState) -> Router {
         )))
         .layer(auth::cors(&config.cors_origins))
         .layer(TraceLayer::new_for_http());
-    api.with_state(state)
+    // The dashboard's static files need no token (see `dashboard`).
+    let pages = Router::new()
+        .route("/", get(dashboard::index))
+        .route("/dashboard/{*path}", get(dashboard::file))
+        .layer(TraceLayer::new_for_http());
+    pages.merge(api).with_state(state)
 }
 
 /// A running server (for tests and `retex serve`).

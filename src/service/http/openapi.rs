@@ -6,7 +6,7 @@ use axum::Json;
 use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
 use utoipa::{Modify, OpenApi};
 
-use super::{doc, events, files, jobs, metrics, ops};
+use super::{dashboard, doc, events, files, jobs, metrics, ops};
 
 struct BearerAuth;
 
@@ -30,12 +30,13 @@ impl Modify for BearerAuth {
     ),
     paths(
         jobs::submit, jobs::list_jobs, jobs::get_job, jobs::cancel_job, jobs::delete_job,
-        files::result, files::artifact, events::events,
+        files::result, files::artifact, events::events, dashboard::api::methods, dashboard::api::constraints,
         ops::healthz, ops::readyz, metrics::metrics, openapi_json,
     ),
     components(schemas(
         doc::JobDocument, doc::JobSummary, doc::JobList, doc::JobLinks, doc::ArtifactLink, doc::ProgressDoc,
         doc::StageCount, doc::JobEventDoc, doc::ProblemSchema, doc::JobStatusSchema, doc::SubmitForm,
+        dashboard::MethodList, dashboard::MethodDoc, dashboard::InputsDoc, dashboard::InputUseDoc,
     )),
     modifiers(&BearerAuth),
     security((), ("bearer" = [])),

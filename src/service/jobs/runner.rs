@@ -41,9 +41,13 @@ use sha2::{Digest, Sha256};
 use tokio::sync::{broadcast, oneshot, watch, Notify};
 use uuid::Uuid;
 
+use super::preview::{
+    amend_report, combined_progress, render_previews, PreviewInput, INPUT_SIZE, INPUT_VIEWS,
+    RESULT_SIZE, RESULT_VIEWS,
+};
 use crate::engine::asset::constraints::{Constraints, OutputFormat};
 use crate::engine::asset::{BlobSet, IngestLimits};
-use crate::engine::control::{Control, Progress};
+use crate::engine::control::Control;
 use crate::engine::methods::Registry;
 use crate::engine::pipeline::{
     transfer_with, ImageInput, ModelInput, TransferError, TransferInput,
@@ -141,6 +145,8 @@ pub struct JobEvent {
 /// A job running here.
 struct Running {
     control: Control,
+    /// The preview stage's control (see [`super::preview`]).
+    preview: Control,
     /// Cancel requested by a client: finish as canceled.
     client_cancel: AtomicBool,
     /// Stopped by shutdown: put back to enqueued.
@@ -204,15 +210,6 @@ impl std::fmt::Debug for Runner {
 
 fn locked<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|e| e.into_inner())
-}
-
-fn to_job_progress(p: Progress) -> JobProgress {
-    JobProgress {
-        stage: p.stage,
-        fraction: p.fraction,
-        stages_done: p.stages_done,
-        stages_total: p.stages_total,
-    }
 }
 
 fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
@@ -310,15 +307,15 @@ impl Runner {
     /// Live progress of a job running here (`None` once a client canceled it: the stored
     /// record is then the truth).
     pub fn progress(&self, id: Uuid) -> Option<JobProgress> {
-        let control = {
+        let (control, preview) = {
             let running = locked(&self.running);
             let r = running.get(&id)?;
             if r.client_cancel.load(Ordering::SeqCst) {
                 return None;
             }
-            r.control.clone()
+            (r.control.clone(), r.preview.clone())
         };
-        Some(to_job_progress(control.progress()))
+        Some(combined_progress(control.progress(), preview.progress()))
     }
 
     /// A receiver of every status and progress change of every job from now on.
@@ -445,6 +442,7 @@ impl Runner {
     fn launch(self: &Arc<Self>, job: JobRecord) {
         let running = Arc::new(Running {
             control: Control::new(),
+            preview: Control::new(),
             client_cancel: AtomicBool::new(false),
             requeue: AtomicBool::new(false),
             cancel_wake: Notify::new(),
@@ -473,6 +471,7 @@ impl Runner {
         let _enter = span.enter();
         tracing::info!("job started");
         let control = running.control.clone();
+        let preview = running.preview.clone();
         let mut revision = job.revision;
         self.emit(id, JobStatus::Processing, job.progress.clone(), revision);
 
@@ -486,6 +485,7 @@ impl Runner {
         };
         let engine_job = job.clone();
         let engine_control = control.clone();
+        let preview_control = preview.clone();
         // A slot whose previous engine call has ended; there is one, because at most `workers`
         // jobs are busy and a job stays busy until its engine call returns.
         let (pool, in_use) = self
@@ -500,7 +500,7 @@ impl Runner {
             .unwrap_or_else(|| self.pools[0].clone());
         pool.spawn(move || {
             let out = catch_unwind(AssertUnwindSafe(|| {
-                execute(&ctx, &engine_job, &engine_control)
+                execute(&ctx, &engine_job, &engine_control, &preview_control)
             }))
             .unwrap_or_else(|p| Outcome::Failed(panic_problem(&panic_message(p.as_ref()))));
             in_use.store(false, Ordering::SeqCst);
@@ -526,7 +526,7 @@ impl Runner {
                     self.store_finish(id, Finish::Canceled).await;
                 }
                 _ = ticker.tick(), if !canceled => {
-                    let p = to_job_progress(control.progress());
+                    let p = combined_progress(control.progress(), preview.progress());
                     if p == last_sent {
                         continue;
                     }
@@ -561,7 +561,7 @@ impl Runner {
         }
         // A job faster than the progress interval never stored its stage counts: store the
         // final ones before finishing, so the document reports the stages that ran.
-        let last = to_job_progress(control.progress());
+        let last = combined_progress(control.progress(), preview.progress());
         if last.stages_total != last_stored.stages_total && !matches!(outcome, Outcome::Canceled) {
             let jobs = Arc::clone(&self.jobs);
             match tokio::task::spawn_blocking(move || jobs.update_progress(id, &last)).await {
@@ -682,7 +682,7 @@ fn read_model(blobs: &dyn BlobStore, files: &ModelFiles) -> Result<BlobSet, Stor
 }
 
 /// The engine side of a job; runs on an engine thread.
-fn execute(ctx: &EngineCtx, job: &JobRecord, control: &Control) -> Outcome {
+fn execute(ctx: &EngineCtx, job: &JobRecord, control: &Control, preview: &Control) -> Outcome {
     if let Some(hook) = &ctx.hook {
         hook(job);
     }
@@ -752,7 +752,7 @@ fn execute(ctx: &EngineCtx, job: &JobRecord, control: &Control) -> Outcome {
         Err(e) => return Outcome::Failed(transfer_problem(&e)),
     };
     drop(input);
-    drop((source, target, source_base, pattern));
+    drop((source_base, pattern));
     if control.is_cancelled() {
         // Canceled after the engine's last check: the client already sees `canceled`.
         return Outcome::Canceled;
@@ -761,10 +761,55 @@ fn execute(ctx: &EngineCtx, job: &JobRecord, control: &Control) -> Outcome {
         OutputFormat::Glb => ("result.glb", "model/gltf-binary"),
         OutputFormat::Gltf => ("result.gltf", "model/gltf+json"),
     };
-    let mut files: Vec<(String, String, Vec<u8>)> = Vec::with_capacity(out.artifacts.len() + 1);
+    let mut result = BlobSet::new();
+    // A copy: the blob set cannot give its bytes back, and the result is stored below.
+    result.insert(name, out.model.clone());
+    let mut models = vec![PreviewInput {
+        artifact: "preview.png",
+        stage: "preview: result",
+        main: name,
+        blobs: &result,
+        views: RESULT_VIEWS,
+        size: RESULT_SIZE,
+    }];
+    if let (Some(files), Some(blobs)) = (&job.inputs.source, &source) {
+        models.push(PreviewInput {
+            artifact: "source_preview.png",
+            stage: "preview: source",
+            main: &files.main,
+            blobs,
+            views: INPUT_VIEWS,
+            size: INPUT_SIZE,
+        });
+    }
+    models.push(PreviewInput {
+        artifact: "target_preview.png",
+        stage: "preview: target",
+        main: &job.inputs.target.main,
+        blobs: &target,
+        views: INPUT_VIEWS,
+        size: INPUT_SIZE,
+    });
+    let Some(previews) = render_previews(&models, &ctx.limits, preview, || control.is_cancelled())
+    else {
+        return Outcome::Canceled;
+    };
+    drop(models);
+    drop((source, target, result));
+    let mut report = serde_json::to_value(&out.report).unwrap_or_default();
+    amend_report(&mut report, preview, &previews.warnings);
+    let mut files: Vec<(String, String, Vec<u8>)> = Vec::with_capacity(out.artifacts.len() + 4);
     files.push((name.into(), media_type.into(), out.model));
     for a in out.artifacts {
-        files.push((a.name, a.media_type, a.bytes));
+        let bytes = if a.name == "report.json" {
+            serde_json::to_vec_pretty(&report).unwrap_or(a.bytes)
+        } else {
+            a.bytes
+        };
+        files.push((a.name, a.media_type, bytes));
+    }
+    for (name, png) in previews.files {
+        files.push((name, "image/png".into(), png));
     }
     let mut artifacts = Vec::with_capacity(files.len());
     for (name, media_type, bytes) in files {
@@ -790,11 +835,12 @@ fn execute(ctx: &EngineCtx, job: &JobRecord, control: &Control) -> Outcome {
         .report
         .timings
         .iter()
+        .chain(&preview.timings())
         .map(|t| (t.stage.clone(), t.ms / 1e3))
         .collect();
     Outcome::Succeeded {
         artifacts,
-        report: serde_json::to_value(&out.report).unwrap_or_default(),
+        report,
         timings,
     }
 }
