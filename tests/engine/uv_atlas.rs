@@ -559,3 +559,120 @@ mod transfer {
         }
     }
 }
+
+// ---- Benchmark: `cargo test --release --test engine bench_uv_atlas -- --ignored --nocapture` ----
+
+/// A GLB of a surface without UVs or normals (u32 indices).
+pub fn surface_glb(s: &Surface) -> Vec<u8> {
+    let mut bin = Vec::new();
+    let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
+    for p in &s.positions {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+            bin.extend_from_slice(&p[k].to_le_bytes());
+        }
+    }
+    let pos_len = bin.len();
+    for f in &s.faces {
+        for v in f {
+            bin.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    let json = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "buffers": [{"byteLength": bin.len()}],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": pos_len, "target": 34962},
+            {"buffer": 0, "byteOffset": pos_len, "byteLength": bin.len() - pos_len, "target": 34963}
+        ],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": s.positions.len(), "type": "VEC3", "min": lo, "max": hi},
+            {"bufferView": 1, "componentType": 5125, "count": s.faces.len() * 3, "type": "SCALAR"}
+        ]
+    });
+    crate::common::glb(&json, &bin)
+}
+
+fn write_obj(s: &Surface, path: &std::path::Path) {
+    use std::fmt::Write;
+    let mut out = String::new();
+    for p in &s.positions {
+        writeln!(out, "v {} {} {}", p[0], p[1], p[2]).unwrap();
+    }
+    for f in &s.faces {
+        writeln!(out, "f {} {} {}", f[0] + 1, f[1] + 1, f[2] + 1).unwrap();
+    }
+    std::fs::write(path, out).unwrap();
+}
+
+/// Atlas timings (median of 3) on spheres of 10k / 40k / 160k vertices and, when the shared
+/// assets are there, on koala, skull (genus 2) and Nefertiti; writes each target as GLB and OBJ
+/// under `$RETEX_BENCH_DIR` (default /tmp/retex-atlas-bench) for the CLI and xatlas runs of the
+/// README.
+#[test]
+#[ignore = "benchmark"]
+fn bench_uv_atlas() {
+    let dir = std::path::PathBuf::from(
+        std::env::var("RETEX_BENCH_DIR").unwrap_or_else(|_| "/tmp/retex-atlas-bench".into()),
+    );
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut cases = vec![
+        ("sphere_10k".to_string(), icosphere(1.0, 32)),
+        ("sphere_40k".to_string(), icosphere(1.0, 63)),
+        ("sphere_160k".to_string(), icosphere(1.0, 127)),
+    ];
+    for (name, rel) in [
+        ("koala_50k", "perf_koala_odedstein/koala.obj"),
+        ("skull_50k", "perf_skull_odedstein/skull.obj"),
+        (
+            "nefertiti_35k",
+            "tgt_nefertiti_bust_odedstein/nefertiti-lowres.obj",
+        ),
+    ] {
+        let path = crate::common::shared_assets_dir().join(rel);
+        if path.exists() {
+            cases.push((name.to_string(), crate::common_geometry::read_obj(&path)));
+        }
+    }
+    for (name, s) in &cases {
+        std::fs::write(dir.join(format!("{name}.glb")), surface_glb(s)).unwrap();
+        write_obj(s, &dir.join(format!("{name}.obj")));
+        let mut times = Vec::new();
+        let mut last = None;
+        for _ in 0..3 {
+            let t = std::time::Instant::now();
+            let a = generate(s, &AtlasParams::default(), &Control::new());
+            times.push(t.elapsed().as_secs_f64() * 1e3);
+            last = Some(a);
+        }
+        times.sort_by(f64::total_cmp);
+        match last.unwrap() {
+            Ok(a) => {
+                let r = &a.report;
+                println!(
+                    "| {name} | {} | {} | {:.0} ms | {} | {:.3} | {:.2} | {:.3} | {:.2} | {:.3} | {:.1} |",
+                    s.positions.len(),
+                    s.faces.len(),
+                    times[1],
+                    r.chart_count,
+                    r.l2_stretch,
+                    r.linf_stretch,
+                    r.angle_distortion,
+                    r.texel_density_spread,
+                    r.packing_efficiency,
+                    r.seam_length / s.diagonal() as f64
+                );
+            }
+            Err(e) => println!(
+                "| {name} | {} | {} | error: {e} |",
+                s.positions.len(),
+                s.faces.len()
+            ),
+        }
+    }
+}

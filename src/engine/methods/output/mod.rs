@@ -22,8 +22,9 @@
 //! * except that, with `output.uv = "auto"` (the default) and the base-colour output, primitives
 //!   without UVs (not skinned or morphed) get a generated atlas instead ([`atlas`]): they are
 //!   replaced by copies carrying TEXCOORD_0 and baked into one texture of a new material. Other
-//!   outputs (normal maps, ...) keep the vertex path, so a method writing several fields keeps
-//!   one consistent layout.
+//!   outputs (normal maps, ...) and outputs without a vertex attribute (ElastiFace writes COLOR_0
+//!   on the source's own vertices itself) are left as they were, so a method writing several
+//!   fields keeps one consistent layout.
 //!
 //! The output depends only on the field's values, never on the thread count: texels and
 //! vertices are independent and results are collected in order.
@@ -166,6 +167,7 @@ pub fn write_field(
     if constraints.output.uv == UvMode::Auto
         && !constraints.output.all_vertex_colors()
         && output.slot == TextureSlot::BaseColor
+        && output.vertex_attribute.is_some()
     {
         let (take, keep): (Vec<_>, Vec<_>) = layout
             .vertex_path
