@@ -293,9 +293,10 @@ mod transfer {
 
     /// Hand-made box-projection UVs: each triangle goes to the cell (3 × 2 grid) of its normal's
     /// dominant signed axis and is projected onto that axis' plane; vertices split per cell.
-    fn box_uvs(
-        prim: &retex::engine::asset::Primitive,
-    ) -> (Vec<[f32; 3]>, Vec<[f32; 2]>, Vec<[u32; 3]>, Vec<u32>) {
+    /// Positions, UVs, triangles and the input vertex of each output vertex.
+    type Boxed = (Vec<[f32; 3]>, Vec<[f32; 2]>, Vec<[u32; 3]>, Vec<u32>);
+
+    fn box_uvs(prim: &retex::engine::asset::Primitive) -> Boxed {
         let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
         for p in &prim.positions {
             for k in 0..3 {

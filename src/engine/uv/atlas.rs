@@ -218,12 +218,13 @@ fn check(surface: &Surface, params: &AtlasParams) -> Result<(), AtlasError> {
     if params.gutter > 256 {
         return Err(AtlasError::InvalidParam("gutter must be at most 256"));
     }
-    if !(params.max_normal_deviation > 0.0 && params.max_normal_deviation <= 180.0) {
+    let cone = params.max_normal_deviation;
+    if cone.is_nan() || cone <= 0.0 || cone > 180.0 {
         return Err(AtlasError::InvalidParam(
             "max_normal_deviation must be in (0, 180]",
         ));
     }
-    if !(params.max_stretch >= 1.0 && params.max_stretch.is_finite()) {
+    if !params.max_stretch.is_finite() || params.max_stretch < 1.0 {
         return Err(AtlasError::InvalidParam(
             "max_stretch must be finite and at least 1",
         ));
@@ -232,7 +233,7 @@ fn check(surface: &Surface, params: &AtlasParams) -> Result<(), AtlasError> {
         let p = surface.face_positions(f);
         let (_, area) = local_triangle(p);
         let finite = p.iter().flatten().all(|c| c.is_finite());
-        if !finite || !(area > 0.0) {
+        if !finite || area.is_nan() || area <= 0.0 {
             return Err(AtlasError::DegenerateFace { face: f });
         }
     }
