@@ -13,3 +13,4 @@ pub mod pipeline;
 pub mod rng;
 pub mod spatial;
 pub mod texture;
+pub mod uv;

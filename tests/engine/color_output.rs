@@ -67,8 +67,9 @@ fn a_constant_field_bakes_its_color_and_colors_vertices() {
             assert!((p[k] - color[k]).abs() < 0.01, "{p:?}");
         }
     }
-    // A primitive without UVs gets COLOR_0 on a refined copy.
+    // With `uv: keep`, a primitive without UVs gets COLOR_0 on a refined copy.
     let boxed = load_path(&test_data(BOX_COLORS));
+    let c = constraints(r#"{"version": 1, "output": {"texture_size": 64, "uv": "keep"}}"#);
     let (edits, report) =
         write_color_field(&boxed, &c, 500, &Constant(color), &Control::new()).unwrap();
     assert!(!edits.iter().any(|e| matches!(e, Edit::SetTexture { .. })));

@@ -269,7 +269,8 @@ pub(crate) fn transfer_named(
     let out = run_bytes(
         ("s.glb", c.source_glb.clone()),
         ("t.glb", c.target_glb.clone()),
-        json!({"version": 1, "method": "correlation", "seed": seed, "params": p}),
+        // `uv: keep`: these tests read the COLOR_0 of the refined copy, not the generated atlas.
+        json!({"version": 1, "method": "correlation", "seed": seed, "output": {"uv": "keep"}, "params": p}),
     );
     assert_validator_clean(&out.model, "correlation.glb");
     if let (Some(name), Some(dir)) = (name, std::env::var_os("RETEX_CORRELATION_DUMP")) {

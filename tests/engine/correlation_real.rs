@@ -19,9 +19,10 @@ const BUST: &str = "tgt_demosthenes_bust_odedstein/demosthenes-low-res_derived.g
 fn run(source: &str, target: &str, params: serde_json::Value) -> TransferOutput {
     let (sm, sb) = BlobSet::from_path(&shared_asset(source)).expect("read source");
     let (tm, tb) = BlobSet::from_path(&shared_asset(target)).expect("read target");
-    let c: Constraints =
-        serde_json::from_value(json!({"version": 1, "method": "correlation", "params": params}))
-            .unwrap();
+    let c: Constraints = serde_json::from_value(
+        json!({"version": 1, "method": "correlation", "output": {"uv": "keep"}, "params": params}),
+    )
+    .unwrap();
     transfer(
         &TransferInput::pair(
             ModelInput {

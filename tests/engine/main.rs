@@ -56,3 +56,4 @@ mod shared_pairs;
 mod spectra;
 mod surface_bvh_properties;
 mod texture_properties;
+mod uv_atlas;

@@ -469,7 +469,9 @@ fn the_color_0_fallback_keeps_to_its_vertex_budget() {
     for p in &mut asset.primitives {
         p.tex_coords.clear();
     }
-    let c = Constraints::default();
+    // `uv: keep`: the COLOR_0 path, not the generated atlas (tests/engine/uv_atlas.rs).
+    let mut c = Constraints::default();
+    c.output.uv = retex::engine::asset::constraints::UvMode::Keep;
     for budget in [5_000usize, 12_000, 20_000, 35_000, 60_000, 100_000] {
         let (edits, report) = write_color_field(
             &asset,

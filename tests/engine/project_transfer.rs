@@ -182,7 +182,7 @@ fn round_trip(
     let ab = run(
         &src,
         &tgt,
-        constraints(json!({"version": 1, "params": forward})),
+        constraints(json!({"version": 1, "output": {"uv": "keep"}, "params": forward})),
     )
     .unwrap();
     assert_validator_clean(&ab.model, &format!("{name}_forward.glb"));
@@ -406,7 +406,7 @@ fn gating_by_distance_leaves_far_texels_unmatched() {
         &spot,
         &sphere,
         constraints(
-            json!({"version": 1, "params": {"max_distance": 0.01, "vertex_color_samples": 5000}}),
+            json!({"version": 1, "output": {"uv": "keep"}, "params": {"max_distance": 0.01, "vertex_color_samples": 5000}}),
         ),
     )
     .unwrap();

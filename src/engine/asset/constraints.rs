@@ -155,6 +155,20 @@ pub const TEXTURE_SIZE_RANGE: std::ops::RangeInclusive<u32> = 16..=8192;
 /// Largest `output.padding`, in texels.
 pub const MAX_PADDING: u32 = 256;
 
+/// What the target's texture coordinates become (`output.uv`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum UvMode {
+    /// Keep the target's UVs where present; generate an atlas for primitives without them
+    /// (base colour; see `engine::uv`).
+    #[default]
+    Auto,
+    /// Keep the target's UVs; primitives without them get COLOR_0 on a refined copy.
+    Keep,
+    /// No textures: COLOR_0 on every primitive's own vertices (as `vertex_colors: true`).
+    VertexColors,
+}
+
 /// Output options.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -166,8 +180,18 @@ pub struct OutputOptions {
     pub padding: u32,
     /// Also write the transferred color as COLOR_0 on the target's vertices. Default false.
     pub vertex_colors: bool,
+    /// Texture coordinates: `auto` (default), `keep` or `vertex_colors` ([`UvMode`]).
+    pub uv: UvMode,
     /// Output container. Default `glb`.
     pub format: OutputFormat,
+}
+
+impl OutputOptions {
+    /// Whether every primitive gets COLOR_0 instead of a texture (`vertex_colors: true` or
+    /// `uv: "vertex_colors"`).
+    pub fn all_vertex_colors(&self) -> bool {
+        self.vertex_colors || self.uv == UvMode::VertexColors
+    }
 }
 
 impl Default for OutputOptions {
@@ -176,6 +200,7 @@ impl Default for OutputOptions {
             texture_size: 2048,
             padding: 16,
             vertex_colors: false,
+            uv: UvMode::Auto,
             format: OutputFormat::Glb,
         }
     }

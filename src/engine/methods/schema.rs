@@ -125,6 +125,11 @@ pub fn constraints_schema_for(registry: &Registry) -> Value {
                         "default": output["vertex_colors"],
                         "description": "Write COLOR_0 on the target's own vertices instead of baking textures.",
                     },
+                    "uv": {
+                        "enum": ["auto", "keep", "vertex_colors"],
+                        "default": output["uv"],
+                        "description": "auto: keep the target's UVs, generate an atlas (TEXCOORD_0, vertices split at chart seams, baked base-colour texture) for primitives without them; keep: primitives without UVs get COLOR_0 on a refined copy; vertex_colors: COLOR_0 on every primitive, no textures.",
+                    },
                     "format": {"enum": ["glb", "gltf"], "default": output["format"]},
                 },
             },

@@ -129,7 +129,7 @@ pub fn relay_texture(
     control: &Control,
 ) -> Result<(Vec<Edit>, OutputReport), MethodError> {
     let mut output = base_color_output(1);
-    let own_vertices = !constraints.output.vertex_colors;
+    let own_vertices = !constraints.output.all_vertex_colors();
     if own_vertices {
         output.vertex_attribute = None;
     }

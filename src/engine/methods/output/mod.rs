@@ -18,17 +18,24 @@
 //!   the field as a vertex attribute when the output names one (COLOR_0 for colour): on a refined
 //!   copy with at most about `vertex_samples` vertices in all (on their own vertices when vertex
 //!   colours were requested or the primitive is skinned or morphed); vertices where the field has
-//!   no value take their neighbours' mean ([`vertices`]).
+//!   no value take their neighbours' mean ([`vertices`]);
+//! * except that, with `output.uv = "auto"` (the default) and the base-colour output, primitives
+//!   without UVs (not skinned or morphed) get a generated atlas instead ([`atlas`]): they are
+//!   replaced by copies carrying TEXCOORD_0 and baked into one texture of a new material. Other
+//!   outputs (normal maps, ...) and outputs without a vertex attribute (ElastiFace writes COLOR_0
+//!   on the source's own vertices itself) are left as they were, so a method writing several
+//!   fields keeps one consistent layout.
 //!
 //! The output depends only on the field's values, never on the thread count: texels and
 //! vertices are independent and results are collected in order.
 
+pub mod atlas;
 pub mod texels;
 pub mod vertices;
 
 use serde::Serialize;
 
-use crate::engine::asset::constraints::Constraints;
+use crate::engine::asset::constraints::{Constraints, UvMode};
 use crate::engine::asset::edits::{Edit, TextureSlot};
 use crate::engine::asset::Asset;
 use crate::engine::control::{Cancelled, Control};
@@ -136,6 +143,9 @@ pub struct OutputReport {
     pub vertex_colors: Vec<VertexColorReport>,
     /// Things the user should know (lowercase sentences).
     pub warnings: Vec<String>,
+    /// The generated UV atlas, when primitives without UVs got one (`output.uv = "auto"`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub atlas: Option<crate::engine::uv::AtlasReport>,
 }
 
 /// Writes `field` into `asset` as `output` says (see the module docs). Control stages `bake`,
@@ -151,8 +161,37 @@ pub fn write_field(
     control: &Control,
 ) -> Result<(Vec<Edit>, OutputReport), Cancelled> {
     let mut report = OutputReport::default();
-    let layout = texels::layout(asset, constraints, &mut report.warnings);
+    let mut layout = texels::layout(asset, constraints, &mut report.warnings);
     let size = constraints.output.texture_size;
+    let mut atlas_edits = Vec::new();
+    if constraints.output.uv == UvMode::Auto
+        && !constraints.output.all_vertex_colors()
+        && output.slot == TextureSlot::BaseColor
+        && output.vertex_attribute.is_some()
+    {
+        let (take, keep): (Vec<_>, Vec<_>) = layout
+            .vertex_path
+            .iter()
+            .partition(|(p, _)| atlas::replaceable(asset, *p));
+        if !take.is_empty() {
+            let span = control.span(0.0, 0.1);
+            let built = atlas::build(
+                asset,
+                &take,
+                size,
+                constraints.output.padding,
+                control,
+                &mut report.warnings,
+            )?;
+            drop(span);
+            if let Some(a) = built {
+                layout.vertex_path = keep;
+                layout.atlas = a.tris;
+                atlas_edits = a.edits;
+                report.atlas = Some(a.report);
+            }
+        }
+    }
     let span = control.span(0.0, 0.75);
     let baked = texels::bake_groups(asset, &layout, size, field, control)?;
     drop(span);
@@ -160,7 +199,8 @@ pub fn write_field(
     let span = control.span(0.75, 0.9);
     let finished =
         texels::finish_textures(baked, size, constraints.output.padding, output, control)?;
-    let mut edits = Vec::new();
+    // The replaced primitives first: the texture edit assigns its new material to them.
+    let mut edits = atlas_edits;
     for (texture, tr) in finished {
         edits.push(texture);
         report.textures.push(tr);

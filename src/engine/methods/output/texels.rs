@@ -19,10 +19,10 @@ use crate::engine::texture::pad::pad;
 pub(super) struct PlacedTriangle {
     pub(super) primitive: usize,
     /// Index into the primitive's triangles.
-    triangle: usize,
-    world: [[f32; 3]; 3],
-    normal: [f32; 3],
-    uv: [[f32; 2]; 3],
+    pub(super) triangle: usize,
+    pub(super) world: [[f32; 3]; 3],
+    pub(super) normal: [f32; 3],
+    pub(super) uv: [[f32; 2]; 3],
 }
 
 /// Triangles grouped for output.
@@ -31,6 +31,9 @@ pub(super) struct Layout {
     pub(super) groups: std::collections::BTreeMap<Option<usize>, Vec<PlacedTriangle>>,
     /// Vertex path: (primitive, first instance).
     pub(super) vertex_path: Vec<(usize, usize)>,
+    /// Atlas path: the replaced primitives' triangles, baked into one texture of a new
+    /// material through TEXCOORD_0 ([`super::atlas`]).
+    pub(super) atlas: Vec<PlacedTriangle>,
 }
 
 /// The base-color UV set of primitive `p` (0 without a texture).
@@ -51,12 +54,13 @@ pub(super) fn layout(
     let mut out = Layout {
         groups: Default::default(),
         vertex_path: Vec::new(),
+        atlas: Vec::new(),
     };
     for (ii, inst) in asset.instances.iter().enumerate() {
         for p in asset.primitives_of_mesh(inst.mesh) {
             let prim = &asset.primitives[p];
             let set = uv_set_of(asset, p) as usize;
-            if constraints.output.vertex_colors || prim.tex_coords.len() <= set {
+            if constraints.output.all_vertex_colors() || prim.tex_coords.len() <= set {
                 if !out.vertex_path.iter().any(|(q, _)| *q == p) {
                     out.vertex_path.push((p, ii));
                 } else {
@@ -92,6 +96,8 @@ pub(super) fn layout(
 /// Texels of one group after evaluation, before padding.
 pub(super) struct Baked<'a> {
     material: Option<usize>,
+    /// The atlas group (new material, TEXCOORD_0).
+    atlas: bool,
     tris: &'a [PlacedTriangle],
     pixels: Vec<[f32; 4]>,
     valid: Vec<bool>,
@@ -106,10 +112,16 @@ pub(super) fn bake_groups<'a>(
     field: &dyn SurfaceField,
     control: &Control,
 ) -> Result<Vec<Baked<'a>>, Cancelled> {
-    let total_texels = layout.groups.len() as u64 * size as u64 * size as u64;
+    let groups: Vec<(Option<usize>, bool, &[PlacedTriangle])> = layout
+        .groups
+        .iter()
+        .map(|(m, t)| (*m, false, t.as_slice()))
+        .chain((!layout.atlas.is_empty()).then_some((None, true, layout.atlas.as_slice())))
+        .collect();
+    let total_texels = groups.len() as u64 * size as u64 * size as u64;
     let stage = control.stage("bake", total_texels)?;
     let mut baked = Vec::new();
-    for (material, tris) in &layout.groups {
+    for (material, atlas, tris) in groups {
         let uvs: Vec<[[f32; 2]; 3]> = tris.iter().map(|t| t.uv).collect();
         let map = rasterize_uv_layout(&uvs, size, size);
         control.check()?;
@@ -154,14 +166,18 @@ pub(super) fn bake_groups<'a>(
         let covered = map.covered();
         let unmatched = covered - valid.iter().filter(|v| **v).count() as u64;
         baked.push(Baked {
-            material: *material,
+            material,
+            atlas,
             tris,
             pixels,
             valid,
             report: TextureReport {
-                material: *material,
+                material,
                 size,
-                tex_coord: tris.first().map_or(0, |t| uv_set_of(asset, t.primitive)),
+                tex_coord: match atlas {
+                    true => 0,
+                    false => tris.first().map_or(0, |t| uv_set_of(asset, t.primitive)),
+                },
                 triangles: tris.len(),
                 covered,
                 overlapped: map.overlapped,
@@ -210,6 +226,7 @@ pub(super) fn finish_textures(
             prims.sort_unstable();
             prims.dedup();
             let name = match b.material {
+                _ if b.atlas => format!("{}_atlas", output.name),
                 Some(m) => format!("{}_material{m}", output.name),
                 None => format!("{}_default", output.name),
             };

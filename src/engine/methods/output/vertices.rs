@@ -173,13 +173,13 @@ pub(super) fn write_vertex_values(
             let prim_json = &asset.json["meshes"][prim.mesh]["primitives"][prim.primitive];
             let skinned_or_morphed = prim_json.get("targets").is_some()
                 || prim_json["attributes"].get("JOINTS_0").is_some();
-            if !constraints.output.vertex_colors && skinned_or_morphed {
+            if !constraints.output.all_vertex_colors() && skinned_or_morphed {
                 report.warnings.push(format!(
                     "mesh {} primitive {} has skin or morph data; COLOR_0 was written on its own vertices instead of a refined copy",
                     prim.mesh, prim.primitive
                 ));
             }
-            !constraints.output.vertex_colors && !skinned_or_morphed
+            !constraints.output.all_vertex_colors() && !skinned_or_morphed
         })
         .collect();
     let geometries = budgeted_geometries(asset, vertex_path, &refine_it, output, control)?;
@@ -222,7 +222,7 @@ pub(super) fn write_vertex_values(
         stage.tick(1)?;
     }
     edits.cleared.sort_unstable();
-    if !constraints.output.vertex_colors {
+    if !constraints.output.all_vertex_colors() {
         report.warnings.push(format!(
             "{} primitive(s) have no UVs for a base color texture: the color was written as COLOR_0 on a refined copy",
             vertex_path.len()

@@ -126,6 +126,9 @@ pub struct ProjectReport {
     pub textures: Vec<TextureReport>,
     /// One entry per primitive that received COLOR_0.
     pub vertex_colors: Vec<VertexColorReport>,
+    /// The generated UV atlas of the primitives that had no UVs (`output.uv = "auto"`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub atlas: Option<crate::engine::uv::AtlasReport>,
     /// Things the user should know (lowercase sentences).
     pub warnings: Vec<String>,
 }
@@ -310,6 +313,7 @@ pub fn run(
         alignment,
         textures: out.textures,
         vertex_colors: out.vertex_colors,
+        atlas: out.atlas,
         warnings,
     };
     Ok((edits, report))

@@ -1,0 +1,206 @@
+//! Per-chart parameterisation: least-squares conformal maps (Lévy, Petitjean, Ray & Maillot
+//! 2002, "Least Squares Conformal Maps for Automatic Texture Atlas Generation", §3: the
+//! discrete conformality energy of eq. 3 over the triangles, two vertices pinned, one sparse
+//! least-squares solve) and the stretch metric of Sander, Snyder, Gortler & Hoppe 2001
+//! ("Texture Mapping Progressive Meshes", §3: singular values Γ, γ of the Jacobian of the map
+//! from texture to surface, L2 = √((Γ² + γ²)/2), L∞ = Γ).
+//!
+//! Shared by the atlas ([`super::atlas`]) and the `pattern` method's flattening
+//! (`methods/pattern/flatten.rs`), which calls [`lscm`] instead of holding its own copy.
+//!
+//! Deviations and constants not in the papers:
+//! - Pins: the vertex farthest from the chart's first vertex, and the vertex farthest from
+//!   that one, placed at (0, 0) and (d, 0) with d their 3-D distance (the paper pins "two
+//!   vertices" on the boundary chosen by the user or by the farthest pair; the two-sweep
+//!   farthest pair approximates it in linear time).
+//! - The normal equations are solved by sparse Cholesky (faer) with a relative diagonal shift of
+//!   1e-10 so that slivers do not make them singular; the papers use conjugate gradients.
+//! - Triangles are weighted by √area per residual row, so the energy is Σ area · |residual|²,
+//!   as eq. 3.
+
+use std::sync::Arc;
+
+use crate::engine::linalg::{SparsityPattern, SymbolicCholesky, SymmetricMatrix};
+use crate::engine::mesh::Surface;
+
+/// Relative diagonal shift keeping the normal equations positive definite on slivers.
+const REGULARISATION: f64 = 1e-10;
+
+fn sub(a: [f32; 3], b: [f32; 3]) -> [f64; 3] {
+    [0, 1, 2].map(|k| f64::from(a[k]) - f64::from(b[k]))
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// The triangle in its own plane: corners 2-D (counter-clockwise) and its area.
+pub fn local_triangle(p: [[f32; 3]; 3]) -> ([[f64; 2]; 3], f64) {
+    let e1 = sub(p[1], p[0]);
+    let e2 = sub(p[2], p[0]);
+    let l1 = dot(e1, e1).sqrt().max(1e-300);
+    let x = e1.map(|c| c / l1);
+    let n = cross(e1, e2);
+    let area = 0.5 * dot(n, n).sqrt();
+    let y0 = cross(n, x);
+    let ly = dot(y0, y0).sqrt().max(1e-300);
+    let y = y0.map(|c| c / ly);
+    ([[0.0, 0.0], [l1, 0.0], [dot(e2, x), dot(e2, y)]], area)
+}
+
+/// Signed area of a 2-D triangle (positive when counter-clockwise).
+pub fn signed_area(q: [[f64; 2]; 3]) -> f64 {
+    0.5 * ((q[1][0] - q[0][0]) * (q[2][1] - q[0][1]) - (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]))
+}
+
+/// Stretch of one triangle (Sander et al. 2001, §3): `(L2², Γ, γ)` of the map from the 2-D
+/// triangle `uv` to the 3-D triangle `p`. `None` when `uv` has no positive area (flipped or
+/// collapsed: infinite stretch).
+pub fn triangle_stretch(p: [[f32; 3]; 3], uv: [[f64; 2]; 3]) -> Option<(f64, f64, f64)> {
+    let a = signed_area(uv);
+    if a <= 0.0 || !a.is_finite() {
+        return None;
+    }
+    let q = p.map(|c| c.map(f64::from));
+    let [s1, s2, s3] = [uv[0][0], uv[1][0], uv[2][0]];
+    let [t1, t2, t3] = [uv[0][1], uv[1][1], uv[2][1]];
+    let ss: [f64; 3] = [0, 1, 2]
+        .map(|k| (q[0][k] * (t2 - t3) + q[1][k] * (t3 - t1) + q[2][k] * (t1 - t2)) / (2.0 * a));
+    let st: [f64; 3] = [0, 1, 2]
+        .map(|k| (q[0][k] * (s3 - s2) + q[1][k] * (s1 - s3) + q[2][k] * (s2 - s1)) / (2.0 * a));
+    let (aa, bb, cc) = (dot(ss, ss), dot(ss, st), dot(st, st));
+    let root = ((aa - cc).powi(2) + 4.0 * bb * bb).sqrt();
+    let big = (0.5 * (aa + cc + root)).max(0.0).sqrt();
+    let small = (0.5 * (aa + cc - root)).max(0.0).sqrt();
+    Some((0.5 * (aa + cc), big, small))
+}
+
+/// Two pins far apart: the vertex farthest from the first, and the one farthest from that.
+fn pins(surface: &Surface, vertices: &[u32]) -> (usize, usize) {
+    let far = |from: usize| {
+        let p = surface.positions[vertices[from] as usize];
+        let d = |i: usize| {
+            let e = sub(surface.positions[vertices[i] as usize], p);
+            dot(e, e)
+        };
+        (0..vertices.len())
+            .max_by(|a, b| d(*a).total_cmp(&d(*b)).then(b.cmp(a)))
+            .unwrap_or(0)
+    };
+    let a = far(0);
+    let b = far(a);
+    (a, b)
+}
+
+/// Free-boundary LSCM of the faces `faces` whose vertices are `vertices` (sorted surface
+/// indices): minimises Σ_t A_t |∇v − rot90(∇u)|² with two pinned vertices. Returns one 2-D
+/// position per entry of `vertices`, in world units up to the conformal scale, or `None` when
+/// the solve fails (degenerate input).
+pub fn lscm(surface: &Surface, faces: &[u32], vertices: &[u32]) -> Option<Vec<[f64; 2]>> {
+    let n = vertices.len();
+    let (pa, pb) = pins(surface, vertices);
+    if pa == pb {
+        return None;
+    }
+    let e = sub(
+        surface.positions[vertices[pa] as usize],
+        surface.positions[vertices[pb] as usize],
+    );
+    let d = dot(e, e).sqrt();
+    // Unknowns: u_i at 2i, v_i at 2i + 1; pinned ones carry a value instead.
+    let mut fixed: Vec<Option<f64>> = vec![None; 2 * n];
+    fixed[2 * pa] = Some(0.0);
+    fixed[2 * pa + 1] = Some(0.0);
+    fixed[2 * pb] = Some(d);
+    fixed[2 * pb + 1] = Some(0.0);
+    let mut free = vec![usize::MAX; 2 * n];
+    let mut m = 0;
+    for (i, f) in fixed.iter().enumerate() {
+        if f.is_none() {
+            free[i] = m;
+            m += 1;
+        }
+    }
+    let mut triplets: Vec<(usize, usize, f64)> = Vec::with_capacity(faces.len() * 72);
+    let mut rhs = vec![0.0f64; m];
+    for f in faces {
+        let fv = surface.faces[*f as usize];
+        let (q, area) = local_triangle(surface.face_positions(*f as usize));
+        if area <= 0.0 {
+            continue;
+        }
+        let w = area.sqrt();
+        let mut g = [[0.0f64; 2]; 3];
+        for (j, gj) in g.iter_mut().enumerate() {
+            let e = [
+                q[(j + 2) % 3][0] - q[(j + 1) % 3][0],
+                q[(j + 2) % 3][1] - q[(j + 1) % 3][1],
+            ];
+            *gj = [-e[1] / (2.0 * area), e[0] / (2.0 * area)];
+        }
+        for c in 0..2 {
+            // rot90(g) = (−g.y, g.x); residual = Σ v_j g_j[c] − Σ u_j rot90(g_j)[c].
+            let mut row: [(usize, f64); 6] = [(0, 0.0); 6];
+            for j in 0..3 {
+                let li = vertices.binary_search(&fv[j]).ok()?;
+                let rot = if c == 0 { -g[j][1] } else { g[j][0] };
+                row[2 * j] = (2 * li, -rot * w);
+                row[2 * j + 1] = (2 * li + 1, g[j][c] * w);
+            }
+            let mut b = 0.0;
+            for (idx, coef) in &row {
+                if let Some(val) = fixed[*idx] {
+                    b -= coef * val;
+                }
+            }
+            for (i, ci) in &row {
+                if free[*i] == usize::MAX {
+                    continue;
+                }
+                rhs[free[*i]] += ci * b;
+                for (j, cj) in &row {
+                    if free[*j] != usize::MAX {
+                        triplets.push((free[*i], free[*j], ci * cj));
+                    }
+                }
+            }
+        }
+    }
+    let x = solve_normal(m, triplets, &rhs)?;
+    let value = |i: usize| fixed[i].unwrap_or_else(|| x[free[i]]);
+    Some((0..n).map(|i| [value(2 * i), value(2 * i + 1)]).collect())
+}
+
+/// Solves the assembled symmetric positive system.
+fn solve_normal(m: usize, mut triplets: Vec<(usize, usize, f64)>, rhs: &[f64]) -> Option<Vec<f64>> {
+    let mut columns: Vec<Vec<usize>> = vec![Vec::new(); m];
+    for (i, j, _) in &triplets {
+        columns[*j].push(*i);
+    }
+    let pattern = Arc::new(SparsityPattern::from_columns(&columns).ok()?);
+    let mut values = vec![0.0f64; pattern.nnz()];
+    let mut max_diag = 0.0f64;
+    triplets.sort_unstable_by_key(|t| (t.1, t.0));
+    for (i, j, v) in &triplets {
+        let at = pattern.find(*i, *j)?;
+        values[at] += v;
+        if i == j {
+            max_diag = max_diag.max(values[at]);
+        }
+    }
+    for p in pattern.diagonal_positions() {
+        values[p] += REGULARISATION * max_diag.max(1e-300);
+    }
+    let matrix = SymmetricMatrix::new(pattern.clone(), values).ok()?;
+    let factor = SymbolicCholesky::new(pattern).ok()?.factor(&matrix).ok()?;
+    let x = factor.solve(rhs).ok()?;
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
