@@ -38,6 +38,7 @@ mod geodesic_fans;
 mod geometry_core;
 mod ingest_edge_cases;
 mod memory_budget;
+mod meshmatch_defects;
 mod meshmatch_features;
 mod meshmatch_stripes;
 mod meshmatch_transfer;
