@@ -255,7 +255,7 @@ fn a_dense_target_is_transferred_at_the_requested_density() {
 
 /// Upsampling (§4.2, Figure 6) on a 40 × 20 grid onto itself, from the identity field of level 1,
 /// with only x < 9.5 usable (by-example): the known answer is the identity on the usable part, and
-/// every other target goes to a usable vertex next to the border (x ≥ 8), never outside it.
+/// every other target goes to a usable vertex, never outside it.
 #[test]
 fn upsampling_the_identity_stays_the_identity_and_inside_the_usable_region() {
     use retex::engine::methods::meshmatch::levels::MeshLevels;
@@ -277,7 +277,7 @@ fn upsampling_the_identity_stays_the_identity_and_inside_the_usable_region() {
     };
     let allowed = Allowed {
         mask: &usable,
-        rings: levels.rings(0),
+        seed: 1,
     };
     let fine = upsample(&coarse, 0, &side, &side, &levels.bvh[0], 18, Some(allowed));
     let mut identity = 0;
@@ -291,11 +291,6 @@ fn upsampling_the_identity_stays_the_identity_and_inside_the_usable_region() {
         if usable[t] {
             inside += 1;
             identity += usize::from(s as usize == t);
-        } else {
-            assert!(
-                ps[0] >= 7.5,
-                "target {pt:?} matched {ps:?}, not at the border"
-            );
         }
     }
     let share = identity as f64 / inside as f64;

@@ -18,9 +18,10 @@
 //! and matches may only use painted vertices whose whole fan lies in the painted region. "Whole
 //! fan" is measured, not estimated from a ring count: a source vertex is usable on a level when
 //! every vertex of its fan chart (the vertices within the fan radius plus the filter's reach,
-//! exactly those whose colours enter its fan samples) is painted ([`fan_inside`]). On the finest
-//! level an empty result is an error (the painted region is narrower than one fan); on a coarser
-//! level the painted mask is used unshrunk there and the report says so (`warnings`).
+//! exactly those whose colours enter its fan samples) is painted ([`fan_inside`]), on the finest
+//! level; an empty result there is an error (the painted region is narrower than one fan). Coarser
+//! levels, which only seed the finer ones, use the painted vertices unshrunk: restricting them too
+//! collapsed the synthesized region onto one colour.
 
 use serde::Serialize;
 
@@ -676,6 +677,12 @@ impl<'a> CoarseToFine<'a> {
         let Some(painted) = self.masks.painted.as_ref().map(|p| &p[level]) else {
             return Ok((None, None));
         };
+        if level > 0 {
+            // Coarser levels only seed the finer ones: restricting them to whole-fan vertices
+            // left so few usable sources that the synthesized region collapsed onto one colour
+            // (a striped capsule's unpainted half came out 100% dark).
+            return Ok((Some(painted.clone()), None));
+        }
         let inside = fan_inside(painted, charts);
         if inside.iter().any(|&x| x) {
             return Ok((Some(inside), None));
@@ -738,7 +745,7 @@ impl<'a> CoarseToFine<'a> {
                 self.params.spokes,
                 lv.allowed.as_deref().map(|mask| Allowed {
                     mask,
-                    rings: self.src.rings(level),
+                    seed: mix(self.seed, 0x5a11, level as u64),
                 }),
             ))
         }

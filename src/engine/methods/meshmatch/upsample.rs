@@ -10,17 +10,20 @@
 //! rotation is carried as well: `k_v = k + (α_T − α_S) / (2π/A)`, where `α_T` is the angle of
 //! `v`'s tangent in `c`'s frame and `α_S` that of the new source vertex's tangent in `s`'s frame.
 //!
-//! By-example mode (§5.3): a match that lands on a source vertex matches may not use is moved to
-//! the nearest usable one in edge hops on the finer source level (one multi-source breadth-first
-//! search from all usable vertices per upsampling, seeded in index order, so deterministic). The
-//! paper does not say how it keeps upsampled matches inside the example; without this, they
-//! survive into the finest level wherever no coarser match had a usable descendant.
+//! By-example mode (§5.3): a match that lands on a source vertex matches may not use, and has no
+//! usable descendant of the coarse match, is replaced by a usable vertex drawn at random (seeded
+//! per target vertex and level), like the coarsest level's initialization; the EM iterations then
+//! restore coherence. The paper does not say how it keeps upsampled matches inside the example;
+//! without this they survived into the finest level. Moving them to the nearest usable vertex
+//! instead collapsed whole synthesized regions onto the one stripe at the usable border (a striped
+//! capsule's synthesized half came out 100% dark).
 
 use rayon::prelude::*;
 
 use crate::engine::geometry::expmap::LocalFrames;
 use crate::engine::math::dot;
 use crate::engine::multires::Hierarchy;
+use crate::engine::rng::mix;
 use crate::engine::spatial::Bvh;
 
 use super::matcher::Nnf;
@@ -38,52 +41,20 @@ pub struct Side<'a> {
     pub frames: &'a [LocalFrames],
 }
 
-/// The source vertices matches may use on the finer level (by-example mode), with that level's
-/// 1-rings (CSR offsets, neighbours) to find the nearest usable vertex.
+/// The source vertices matches may use on the finer level (by-example mode) and the seed of the
+/// random replacements.
 #[derive(Clone, Copy)]
 pub struct Allowed<'a> {
     /// Usable source vertices of the finer level.
     pub mask: &'a [bool],
-    /// 1-rings of the finer source level.
-    pub rings: (&'a [u32], &'a [u32]),
-}
-
-/// For every vertex, the nearest vertex of `mask` in edge hops (multi-source breadth-first search,
-/// seeded in index order); vertices in a component without any get the first vertex of
-/// `mask`. `None` when `mask` is empty.
-pub fn nearest_allowed(allowed: &Allowed<'_>) -> Option<Vec<u32>> {
-    let (offsets, neighbours) = allowed.rings;
-    let n = allowed.mask.len();
-    let first = allowed.mask.iter().position(|&x| x)? as u32;
-    let mut nearest = vec![u32::MAX; n];
-    let mut queue = std::collections::VecDeque::new();
-    for (v, &ok) in allowed.mask.iter().enumerate() {
-        if ok {
-            nearest[v] = v as u32;
-            queue.push_back(v as u32);
-        }
-    }
-    while let Some(v) = queue.pop_front() {
-        let v = v as usize;
-        for &w in &neighbours[offsets[v] as usize..offsets[v + 1] as usize] {
-            if nearest[w as usize] == u32::MAX {
-                nearest[w as usize] = nearest[v];
-                queue.push_back(w);
-            }
-        }
-    }
-    for x in nearest.iter_mut() {
-        if *x == u32::MAX {
-            *x = first;
-        }
-    }
-    Some(nearest)
+    /// Seed of the replacement draws.
+    pub seed: u64,
 }
 
 /// Upsamples `coarse` (the field of level `level + 1`) to level `level`. `source_bvh` is the BVH
 /// of the finer source level. With `allowed` (by-example mode), every match lands on a usable
-/// source vertex: a usable descendant of the coarse match if there is one, else the usable
-/// vertex nearest to where it landed (see the module docs).
+/// source vertex: a usable descendant of the coarse match if there is one, else a random usable
+/// vertex (see the module docs).
 pub fn upsample(
     coarse: &Nnf,
     level: usize,
@@ -93,7 +64,11 @@ pub fn upsample(
     spokes: usize,
     allowed: Option<Allowed<'_>>,
 ) -> Nnf {
-    let nearest = allowed.as_ref().and_then(nearest_allowed);
+    let pool: Vec<u32> = allowed.as_ref().map_or_else(Vec::new, |a| {
+        (0..a.mask.len() as u32)
+            .filter(|&s| a.mask[s as usize])
+            .collect()
+    });
     let th = target.hierarchy;
     let sh = source.hierarchy;
     let fine_t = &th.level(level).surface;
@@ -135,16 +110,17 @@ pub fn upsample(
                 }
                 None => 0,
             };
-            if let (Some(ok), Some(nearest)) = (&allowed, &nearest) {
-                if !ok.mask[fine as usize] {
-                    // A descendant of the coarse match that may be used, else the nearest
-                    // usable vertex.
+            if let Some(ok) = &allowed {
+                if !ok.mask[fine as usize] && !pool.is_empty() {
+                    // A descendant of the coarse match that may be used, else a random usable
+                    // vertex.
+                    let draw = mix(ok.seed, level as u64, v as u64) % pool.len() as u64;
                     fine = sh
                         .children(level + 1, s as u32)
                         .iter()
                         .copied()
                         .find(|&d| ok.mask[d as usize])
-                        .unwrap_or(nearest[fine as usize]);
+                        .unwrap_or(pool[draw as usize]);
                 }
             }
             let alpha_t = angle_in(
