@@ -170,3 +170,219 @@ pub fn colored_points(glb: &[u8]) -> Vec<([f32; 3], [f32; 3])> {
     }
     out
 }
+
+/// Texture statistics of issue 14 (item 1): the source's surface colours clustered by k-means
+/// (k = 5, sRGB, area-uniform samples), the area share of every cluster on the source and on an
+/// output (output samples go to the nearest source centre), and the total-variation distance.
+#[derive(Clone, Debug)]
+pub struct ColorStatistics {
+    /// Cluster centres, sRGB in [0, 1].
+    pub centers: Vec<[f32; 3]>,
+    /// Area share of every cluster on the source.
+    pub source: Vec<f64>,
+    /// Area share of every cluster on the output.
+    pub output: Vec<f64>,
+    /// Total-variation distance `½ Σ |source − output|`.
+    pub tv: f64,
+    /// Over clusters covering ≥ 5% of the source: the output/source share ratio farthest from 1
+    /// (as `max(r, 1/r)`).
+    pub worst_ratio: f64,
+}
+
+impl ColorStatistics {
+    /// Whether the issue's target holds: every cluster with ≥ 5% of the source within 0.5-2×
+    /// and TV ≤ 0.12.
+    pub fn kept(&self) -> bool {
+        self.worst_ratio <= 2.0 && self.tv <= 0.12
+    }
+}
+
+impl std::fmt::Display for ColorStatistics {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        for (k, c) in self.centers.iter().enumerate() {
+            write!(
+                f,
+                "[{:.2} {:.2} {:.2}] {:.3}→{:.3}; ",
+                c[0], c[1], c[2], self.source[k], self.output[k]
+            )?;
+        }
+        write!(f, "TV {:.3}, worst ratio {:.2}", self.tv, self.worst_ratio)
+    }
+}
+
+/// `n` area-uniform samples of an asset's base colour (factor × texture × COLOR_0), sRGB, over
+/// all its primitives (primitive positions: the test assets have identity or uniform nodes).
+pub fn area_uniform_colors(
+    asset: &retex::engine::asset::Asset,
+    n: usize,
+    seed: u64,
+) -> Vec<[f32; 3]> {
+    area_uniform_colors_where(asset, n, seed, &|_| true)
+}
+
+/// [`area_uniform_colors`] over the triangles whose centroid passes `keep`.
+pub fn area_uniform_colors_where(
+    asset: &retex::engine::asset::Asset,
+    n: usize,
+    seed: u64,
+    keep: &dyn Fn([f32; 3]) -> bool,
+) -> Vec<[f32; 3]> {
+    use retex::engine::texture::color::linear_to_srgb;
+    use retex::engine::texture::sample::MaterialSampler;
+    let sampler = MaterialSampler::new(asset);
+    let mut cumulative = Vec::new();
+    let mut total = 0.0f64;
+    for (p, prim) in asset.primitives.iter().enumerate() {
+        for (t, tri) in prim.triangles.iter().enumerate() {
+            let [a, b, c] = tri.map(|v| prim.positions[v as usize]);
+            if !keep(std::array::from_fn(|k| (a[k] + b[k] + c[k]) / 3.0)) {
+                continue;
+            }
+            let u: [f32; 3] = std::array::from_fn(|k| b[k] - a[k]);
+            let v: [f32; 3] = std::array::from_fn(|k| c[k] - a[k]);
+            let x = [
+                u[1] * v[2] - u[2] * v[1],
+                u[2] * v[0] - u[0] * v[2],
+                u[0] * v[1] - u[1] * v[0],
+            ];
+            total += 0.5 * ((x[0] * x[0] + x[1] * x[1] + x[2] * x[2]) as f64).sqrt();
+            cumulative.push((total, p, t));
+        }
+    }
+    let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+    let mut uniform = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    (0..n)
+        .map(|_| {
+            let x = uniform() * total;
+            let i = cumulative
+                .partition_point(|e| e.0 < x)
+                .min(cumulative.len() - 1);
+            let (_, p, t) = cumulative[i];
+            let (mut r1, mut r2) = (uniform() as f32, uniform() as f32);
+            if r1 + r2 > 1.0 {
+                (r1, r2) = (1.0 - r1, 1.0 - r2);
+            }
+            let c = sampler.base_color(p, t, [1.0 - r1 - r2, r1, r2]);
+            [0, 1, 2].map(|k| linear_to_srgb(c[k].clamp(0.0, 1.0)))
+        })
+        .collect()
+}
+
+fn nearest(c: [f32; 3], centers: &[[f32; 3]]) -> usize {
+    let d = |a: [f32; 3], b: [f32; 3]| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f32>();
+    (0..centers.len())
+        .min_by(|&a, &b| d(c, centers[a]).total_cmp(&d(c, centers[b])))
+        .unwrap_or(0)
+}
+
+/// k-means (k-means++ seeding from a fixed seed, then 50 Lloyd iterations) of `samples`.
+pub fn kmeans(samples: &[[f32; 3]], k: usize, seed: u64) -> Vec<[f32; 3]> {
+    let mut state = seed.wrapping_mul(0xD1B5_4A32_D192_ED03) | 1;
+    let mut uniform = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let d = |a: [f32; 3], b: [f32; 3]| (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f32>();
+    let mut centers = vec![samples[(uniform() * samples.len() as f64) as usize]];
+    while centers.len() < k {
+        let w: Vec<f64> = samples
+            .iter()
+            .map(|&s| centers.iter().map(|&c| d(s, c)).fold(f32::MAX, f32::min) as f64)
+            .collect();
+        let total: f64 = w.iter().sum();
+        if total <= 0.0 {
+            break;
+        }
+        let mut x = uniform() * total;
+        let mut pick = samples.len() - 1;
+        for (i, wi) in w.iter().enumerate() {
+            if x < *wi {
+                pick = i;
+                break;
+            }
+            x -= wi;
+        }
+        centers.push(samples[pick]);
+    }
+    for _ in 0..50 {
+        let mut sum = vec![[0.0f64; 4]; centers.len()];
+        for &s in samples {
+            let j = nearest(s, &centers);
+            for i in 0..3 {
+                sum[j][i] += s[i] as f64;
+            }
+            sum[j][3] += 1.0;
+        }
+        for (c, s) in centers.iter_mut().zip(&sum) {
+            if s[3] > 0.0 {
+                *c = [0, 1, 2].map(|i| (s[i] / s[3]) as f32);
+            }
+        }
+    }
+    centers
+}
+
+/// Area share of every centre's cluster among `samples`.
+pub fn cluster_shares(samples: &[[f32; 3]], centers: &[[f32; 3]]) -> Vec<f64> {
+    let mut count = vec![0usize; centers.len()];
+    for &s in samples {
+        count[nearest(s, centers)] += 1;
+    }
+    count
+        .iter()
+        .map(|&c| c as f64 / samples.len().max(1) as f64)
+        .collect()
+}
+
+/// The statistics metric of issue 14 between a source asset and an output asset (20,000 samples
+/// each).
+pub fn color_statistics(
+    source: &retex::engine::asset::Asset,
+    output: &retex::engine::asset::Asset,
+) -> ColorStatistics {
+    let s = area_uniform_colors(source, 20_000, 11);
+    let o = area_uniform_colors(output, 20_000, 12);
+    statistics_of_samples(&s, &o)
+}
+
+/// [`color_statistics`] on samples already drawn.
+pub fn statistics_of_samples(source: &[[f32; 3]], output: &[[f32; 3]]) -> ColorStatistics {
+    let centers = kmeans(source, 5, 5);
+    let (src, out) = (
+        cluster_shares(source, &centers),
+        cluster_shares(output, &centers),
+    );
+    let tv = 0.5
+        * src
+            .iter()
+            .zip(&out)
+            .map(|(a, b)| (a - b).abs())
+            .sum::<f64>();
+    let worst_ratio = src
+        .iter()
+        .zip(&out)
+        .filter(|(a, _)| **a >= 0.05)
+        .map(|(a, b)| {
+            let r = b / a;
+            if r > 0.0 {
+                r.max(1.0 / r)
+            } else {
+                f64::INFINITY
+            }
+        })
+        .fold(1.0, f64::max);
+    ColorStatistics {
+        centers,
+        source: src,
+        output: out,
+        tv,
+        worst_ratio,
+    }
+}

@@ -6,7 +6,7 @@
 use crate::common;
 
 use crate::common::{assert_validator_clean, load_bytes, load_path, shared_asset, test_data};
-use crate::meshmatch_common::{capsule, colored_points, glb_of, run_bytes};
+use crate::meshmatch_common::{capsule, color_statistics, colored_points, glb_of, run_bytes};
 use retex::engine::methods::meshmatch::nnf_file::NnfFile;
 use retex::engine::texture::preview::{render_turntable, PreviewParams};
 
@@ -282,8 +282,12 @@ fn by_example_fills_the_unpainted_part_with_the_painted_texture() {
 
 /// Real pairs: Spot onto the cat (no UVs: COLOR_0 on a refined copy) and Blub onto the fish
 /// remesh. Both pass the validator; previews are written; the output is drawn from the source's
-/// palette (at least 90% of the output colours within 0.08, linear RGB, of some source texel), and
-/// the NNF artifact decodes and agrees with the report.
+/// palette (at least 90% of the output colours within 0.08, linear RGB, of some source texel);
+/// every colour cluster of the source (k-means, k = 5, sRGB, area-uniform samples) covering at
+/// least 5% of it still covers at least 0.5% of the output, which a constant colour fails (the
+/// palette check alone passed with one); and the NNF artifact decodes and agrees with the report.
+/// The issue-14 statistics target (every such cluster within 0.5-2×, TV ≤ 0.12) is printed, not
+/// asserted: it does not hold yet (figures in the README).
 #[test]
 #[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
 fn real_pairs_validate_and_keep_the_source_palette() {
@@ -347,6 +351,17 @@ fn real_pairs_validate_and_keep_the_source_palette() {
             near >= 0.9,
             "{name}: only {near:.3} of the colours come from the source"
         );
+        let stats = color_statistics(&source, &load_bytes(&out.model, "out.glb"));
+        eprintln!(
+            "{name}: statistics {stats}; issue-14 target {}",
+            if stats.kept() { "met" } else { "NOT met" }
+        );
+        for (k, (&a, &b)) in stats.source.iter().zip(&stats.output).enumerate() {
+            assert!(
+                a < 0.05 || b >= 0.005,
+                "{name}: source cluster {k} ({a:.3} of the source) vanished ({b:.4}): {stats}"
+            );
+        }
         let nnf = out.artifacts.iter().find(|a| a.name == "nnf.bin").unwrap();
         let file = NnfFile::decode(&nnf.bytes).expect("nnf.bin decodes");
         let r = &out.report.method_report;
@@ -554,6 +569,45 @@ fn by_example_on_a_textured_asset_keeps_the_painted_texels() {
     eprintln!("{same:.3} of the texels unchanged");
     assert!(same >= 0.7, "only {same:.3} of the texels kept");
     assert!(same < 0.999, "nothing was synthesized");
+    // The synthesized region (the head, well inside the unpainted part) is made of the painted
+    // part's colours: its colour clusters (k-means on the painted part) are those of the painted
+    // part, not one colour and not the original head.
+    use crate::meshmatch_common::{area_uniform_colors_where, statistics_of_samples};
+    let rear = area_uniform_colors_where(&spot, 20_000, 1, &|c| c[2] > -0.1);
+    let head = |a: &retex::engine::asset::Asset| {
+        area_uniform_colors_where(a, 20_000, 2, &|c| c[2] < -0.35)
+    };
+    let synthesized = statistics_of_samples(&rear, &head(&result));
+    let original = statistics_of_samples(&rear, &head(&spot));
+    let near_rear = |samples: &[[f32; 3]]| {
+        samples
+            .iter()
+            .filter(|c| {
+                rear.iter()
+                    .step_by(7)
+                    .any(|q| (0..3).map(|k| (c[k] - q[k]).powi(2)).sum::<f32>() < 0.06f32.powi(2))
+            })
+            .count() as f64
+            / samples.len() as f64
+    };
+    let head_out = head(&result);
+    let drawn = near_rear(&head_out[..2000]);
+    let drawn_before = near_rear(&head(&spot)[..2000]);
+    eprintln!(
+        "synthesized head vs painted part: {synthesized}; original head: {original}; \
+         head colours within 0.06 (sRGB) of a painted colour: {drawn:.3} (original head {drawn_before:.3})"
+    );
+    assert!(
+        drawn >= 0.95,
+        "only {drawn:.3} of the head's colours are painted colours"
+    );
+    // Closer to the painted part's statistics than the original head (measured TV 0.30 vs
+    // 0.51). Not asserted: every painted cluster present (the head comes out 93% white, issue 14
+    // item 1).
+    assert!(
+        synthesized.tv < original.tv,
+        "head statistics not moved towards the painted part: {synthesized} vs {original}"
+    );
 }
 
 /// The third mask form: a glTF image read through the base-colour UVs. The striped capsule gets

@@ -15,12 +15,18 @@
 //! weighting at finer scales").
 //!
 //! By-example mode (§5.3): source and target are the same mesh; painted vertices keep their colour
-//! and matches may only use painted vertices whose whole fan lies in the painted region.
+//! and matches may only use painted vertices whose whole fan lies in the painted region. "Whole
+//! fan" is measured, not estimated from a ring count: a source vertex is usable on a level when
+//! every vertex of its fan chart (the vertices within the fan radius plus the filter's reach,
+//! exactly those whose colours enter its fan samples) is painted ([`fan_inside`]), on the finest
+//! level; an empty result there is an error (the painted region is narrower than one fan). Coarser
+//! levels, which only seed the finer ones, use the painted vertices unshrunk: restricting them too
+//! collapsed the synthesized region onto one colour.
 
 use serde::Serialize;
 
 use crate::engine::control::Control;
-use crate::engine::geometry::expmap::RadiusUnit;
+use crate::engine::geometry::expmap::{ExpMap, RadiusUnit};
 use crate::engine::geometry::fans::{FanParams, FanSampler, Fans, FieldRef};
 use crate::engine::geometry::heat::Source;
 use crate::engine::mesh::Surface;
@@ -28,9 +34,9 @@ use crate::engine::rng::{mix, SplitMix64};
 
 use super::features::{automatic_features, geodesic_affinities, AffinityPair, AffinityReport};
 use super::fidelity::{measure, Fidelity, FidelityInput};
-use super::levels::{erode, MeshLevels};
+use super::levels::MeshLevels;
 use super::matcher::{bfs_order, components, EStep, Nnf, PatchSpace};
-use super::upsample::{upsample, Side};
+use super::upsample::{upsample, Allowed, Side};
 use super::vote::{nearest_neighbour_colors, vote, SourcePatches, VoteStencil};
 use super::{MeshMatchError, MeshMatchParams, ShapeFeatures};
 
@@ -91,6 +97,8 @@ pub struct LevelReport {
     pub iterations: Vec<IterationReport>,
     /// Whether the field stabilized before the iteration limit.
     pub converged: bool,
+    /// By-example mode: source vertices matches may use on this level (whole fan painted).
+    pub usable_sources: Option<usize>,
 }
 
 /// Figures of a synthesis.
@@ -106,6 +114,8 @@ pub struct MatchReport {
     pub affinity: Option<AffinityReport>,
     /// Coherence, source self-match and completeness (with `measure_fidelity`).
     pub fidelity: Option<Fidelity>,
+    /// Things the user should know (by-example levels where no fan fits in the painted region).
+    pub warnings: Vec<String>,
 }
 
 /// The result: colours of the target synthesis vertices and the finest field.
@@ -277,7 +287,7 @@ pub fn synthesize(
     drop(span);
 
     let normalization = Normalization::new(input, &src_levels, &shapes);
-    let masks = ExampleMasks::new(input, &src_levels, tgt_levels, params)?;
+    let masks = ExampleMasks::new(input, tgt_levels)?;
     let run = CoarseToFine {
         params,
         seed,
@@ -294,6 +304,7 @@ pub fn synthesize(
         nnf,
         reports,
         fidelity,
+        warnings,
     } = run.all_levels()?;
     control.set_prefix("");
     let colors = colors
@@ -309,6 +320,7 @@ pub fn synthesize(
             features: shapes.kind,
             affinity: shapes.affinity,
             fidelity,
+            warnings,
         },
     })
 }
@@ -372,44 +384,34 @@ impl Normalization {
     }
 }
 
-/// By-example mode (§5.3): per level, the painted target vertices (kept as they are) and the
-/// source vertices matches may use (painted, eroded by the fan's rings where anything is left).
+/// By-example mode (§5.3): the painted target vertices of every level (kept as they are). The
+/// source vertices matches may use are found per level from the fan charts ([`fan_inside`]).
 struct ExampleMasks {
     painted: Option<Vec<Vec<bool>>>,
-    allowed: Option<Vec<Vec<bool>>>,
 }
 
 impl ExampleMasks {
-    fn new(
-        input: &MatchInput<'_>,
-        src_levels: &MeshLevels,
-        tgt_levels: &MeshLevels,
-        params: &MeshMatchParams,
-    ) -> Result<Self, MeshMatchError> {
+    fn new(input: &MatchInput<'_>, tgt_levels: &MeshLevels) -> Result<Self, MeshMatchError> {
         let painted = input.painted.map(|p| tgt_levels.restrict_mask_all(p));
-        let allowed: Option<Vec<Vec<bool>>> = painted.as_ref().map(|pl| {
-            pl.iter()
-                .enumerate()
-                .map(|(l, m)| {
-                    let e = erode(m, src_levels.rings(l), params.rings);
-                    if e.iter().any(|&x| x) {
-                        e
-                    } else {
-                        m.clone()
-                    }
-                })
-                .collect()
-        });
-        if let Some(a) = &allowed {
-            if !a[0].iter().any(|&x| x) {
+        if let Some(p) = &painted {
+            if !p[0].iter().any(|&x| x) {
                 return Err(MeshMatchError::Param {
                     name: "example",
                     message: "the example mask selects no vertex".into(),
                 });
             }
         }
-        Ok(ExampleMasks { painted, allowed })
+        Ok(ExampleMasks { painted })
     }
+}
+
+/// The vertices of `mask` whose whole fan chart lies in `mask`: every vertex within the fan radius
+/// plus the filter's reach (the chart of [`FanSampler`]), i.e. every vertex whose colour enters
+/// one of the vertex's fan samples, is set.
+pub fn fan_inside(mask: &[bool], charts: &ExpMap) -> Vec<bool> {
+    (0..mask.len())
+        .map(|v| mask[v] && charts.chart(v).0.iter().all(|&q| mask[q as usize]))
+        .collect()
 }
 
 /// What every level of the coarse-to-fine loop reads.
@@ -444,9 +446,11 @@ struct Level<'a> {
     /// Scaled shape features.
     src_shape: Vec<f32>,
     tgt_shape: Vec<f32>,
-    /// By-example masks of this level.
-    allowed: Option<&'a [bool]>,
+    /// By-example masks of this level: source vertices matches may use, painted targets.
+    allowed: Option<Vec<bool>>,
     fixed: Option<&'a [bool]>,
+    /// Why `allowed` is the unshrunk painted mask on this level, if it is.
+    warning: Option<String>,
 }
 
 /// What the coarse-to-fine loop ends with.
@@ -459,6 +463,8 @@ struct AllLevels {
     reports: Vec<LevelReport>,
     /// Fidelity figures (with `measure_fidelity`).
     fidelity: Option<Fidelity>,
+    /// Warnings of the levels.
+    warnings: Vec<String>,
 }
 
 /// What one level hands on: the field, the colours, and its figures.
@@ -467,6 +473,7 @@ struct LevelOutput {
     colors: Vec<[f32; 3]>,
     fidelity: Option<Fidelity>,
     report: LevelReport,
+    warning: Option<String>,
 }
 
 impl<'a> CoarseToFine<'a> {
@@ -483,6 +490,7 @@ impl<'a> CoarseToFine<'a> {
         let mut cost_done = 0.0;
         let mut reports = Vec::new();
         let mut fidelity = None;
+        let mut warnings = Vec::new();
         let mut nnf = Nnf::default();
         let mut colors: Vec<[f32; 3]> = Vec::new();
         for level in (0..self.levels).rev() {
@@ -497,6 +505,7 @@ impl<'a> CoarseToFine<'a> {
             if out.fidelity.is_some() {
                 fidelity = out.fidelity;
             }
+            warnings.extend(out.warning);
             reports.push(out.report);
         }
         Ok(AllLevels {
@@ -504,6 +513,7 @@ impl<'a> CoarseToFine<'a> {
             nnf,
             reports,
             fidelity,
+            warnings,
         })
     }
 
@@ -551,7 +561,7 @@ impl<'a> CoarseToFine<'a> {
                     target_sampler: &lv.tgt_sampler,
                     colors: &colors,
                     nnf: &nnf,
-                    allowed: lv.allowed,
+                    allowed: lv.allowed.as_deref(),
                     fixed: lv.fixed,
                     rings: params.rings,
                     seed: self.seed,
@@ -567,12 +577,17 @@ impl<'a> CoarseToFine<'a> {
             shape_weight: lv.weight,
             iterations,
             converged,
+            usable_sources: lv
+                .allowed
+                .as_ref()
+                .map(|a| a.iter().filter(|&&x| x).count()),
         };
         Ok(LevelOutput {
             nnf,
             colors,
             fidelity,
             report,
+            warning: lv.warning,
         })
     }
 
@@ -594,14 +609,17 @@ impl<'a> CoarseToFine<'a> {
             max_chart_vertices: MAX_CHART_VERTICES,
             ..Default::default()
         };
-        let src_fans =
-            FanSampler::new(src_surface, &src_levels.frames[level], &fan_params, control)?.sample(
-                FieldRef {
-                    dim: 3,
-                    values: &src_colors[level],
-                },
-                control,
-            )?;
+        let src_sampler =
+            FanSampler::new(src_surface, &src_levels.frames[level], &fan_params, control)?;
+        let src_fans = src_sampler.sample(
+            FieldRef {
+                dim: 3,
+                values: &src_colors[level],
+            },
+            control,
+        )?;
+        let (allowed, warning) = self.usable_sources(level, src_sampler.charts())?;
+        drop(src_sampler);
         let tgt_sampler =
             FanSampler::new(tgt_surface, &tgt_levels.frames[level], &fan_params, control)?;
         let stencil = VoteStencil::build(tgt_sampler.charts(), radius);
@@ -641,9 +659,48 @@ impl<'a> CoarseToFine<'a> {
             centers,
             src_shape,
             tgt_shape,
-            allowed: self.masks.allowed.as_ref().map(|a| a[level].as_slice()),
+            allowed,
             fixed: self.masks.painted.as_ref().map(|p| p[level].as_slice()),
+            warning,
         })
+    }
+
+    /// By-example mode: the source vertices of `level` whose whole fan lies in the painted region
+    /// ([`fan_inside`]), and a warning when there is none on a coarser level (the painted mask is
+    /// used unshrunk there). None on the finest level is an error.
+    #[allow(clippy::type_complexity)]
+    fn usable_sources(
+        &self,
+        level: usize,
+        charts: &ExpMap,
+    ) -> Result<(Option<Vec<bool>>, Option<String>), MeshMatchError> {
+        let Some(painted) = self.masks.painted.as_ref().map(|p| &p[level]) else {
+            return Ok((None, None));
+        };
+        if level > 0 {
+            // Coarser levels only seed the finer ones: restricting them to whole-fan vertices
+            // left so few usable sources that the synthesized region collapsed onto one colour
+            // (a striped capsule's unpainted half came out 100% dark).
+            return Ok((Some(painted.clone()), None));
+        }
+        let inside = fan_inside(painted, charts);
+        if inside.iter().any(|&x| x) {
+            return Ok((Some(inside), None));
+        }
+        if level == 0 {
+            return Err(MeshMatchError::Param {
+                name: "example",
+                message: format!(
+                    "no fan fits inside the painted region (fan radius {:.4} world units plus the filter reach): paint a wider region or lower fan_radius",
+                    charts.radius
+                ),
+            });
+        }
+        let warning = format!(
+            "by-example: on level {level} ({} vertices) no fan fits inside the painted region; matches there may use any painted vertex",
+            painted.len()
+        );
+        Ok((Some(painted.clone()), Some(warning)))
     }
 
     /// The field to start `lv` from: random on the coarsest level, else upsampled from the
@@ -652,7 +709,7 @@ impl<'a> CoarseToFine<'a> {
         let (level, ns, nt) = (lv.index, lv.ns, lv.nt);
         if level == self.levels - 1 {
             let pool: Vec<u32> = (0..ns as u32)
-                .filter(|&s| lv.allowed.is_none_or(|a| a[s as usize]))
+                .filter(|&s| lv.allowed.as_ref().is_none_or(|a| a[s as usize]))
                 .collect();
             if pool.is_empty() {
                 return Err(MeshMatchError::Param {
@@ -686,7 +743,10 @@ impl<'a> CoarseToFine<'a> {
                 },
                 &self.src.bvh[level],
                 self.params.spokes,
-                lv.allowed,
+                lv.allowed.as_deref().map(|mask| Allowed {
+                    mask,
+                    seed: mix(self.seed, 0x5a11, level as u64),
+                }),
             ))
         }
     }
@@ -743,7 +803,7 @@ impl<'a> CoarseToFine<'a> {
                     target_shape: &lv.tgt_shape,
                     source_shape: &lv.src_shape,
                     shape_dim: self.shapes.dim,
-                    source_allowed: lv.allowed,
+                    source_allowed: lv.allowed.as_deref(),
                     exclude: None,
                 },
                 target_adjacency: tgt_levels.rings(level),

@@ -10,7 +10,9 @@
 //!   are compared in linear space, alpha as stored.
 //!
 //! A synthesis vertex is painted when every synthesis triangle around it lies in a painted region
-//! (faces), or when the mask value at the vertex passes the threshold (vertex colour, image).
+//! (faces), or when the mask value at the vertex's point on the input passes the threshold (vertex
+//! colour, image). On a decimated synthesis mesh a triangle counts as in the input face closest to
+//! its centroid.
 
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
@@ -20,7 +22,7 @@ use crate::engine::asset::{Asset, Sampler};
 use crate::engine::mesh::Surface;
 use crate::engine::texture::sample::{sample_image, MaterialSampler};
 
-use super::sampling::{barycentric_in, SynthesisMesh};
+use super::sampling::SynthesisMesh;
 
 /// A colour channel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
@@ -207,31 +209,21 @@ pub fn painted_vertices(
 }
 
 /// Evaluates `value(primitive, triangle, bary in the triangle's vertex order)` at every synthesis
-/// vertex (in the input face of its first incident synthesis triangle).
+/// vertex, at its point on the input surface ([`SynthesisMesh::vertex_link`]).
 fn values_at_vertices(
     asset: &Asset,
     input: &Surface,
     mesh: &SynthesisMesh,
     value: impl Fn(usize, usize, [f32; 3]) -> f32,
 ) -> Vec<f32> {
-    let s = &mesh.surface;
-    let mut face_of = vec![u32::MAX; s.vertex_count()];
-    for (f, face) in s.faces.iter().enumerate() {
-        for &v in face {
-            if face_of[v as usize] == u32::MAX {
-                face_of[v as usize] = mesh.input_face[f];
-            }
-        }
-    }
-    face_of
+    mesh.vertex_link
         .iter()
-        .enumerate()
-        .map(|(v, &f)| {
-            if f == u32::MAX || input.origins.is_empty() {
+        .map(|link| {
+            if link.face == u32::MAX || input.origins.is_empty() {
                 return 0.0;
             }
-            let f = f as usize;
-            let b = barycentric_in(input.face_positions(f), s.positions[v]);
+            let f = link.face as usize;
+            let b = link.bary;
             let o = input.origins[f];
             let (prim, tri) = (o.primitive as usize, o.triangle as usize);
             let triangle = asset.primitives[prim].triangles[tri];

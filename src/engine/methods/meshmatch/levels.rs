@@ -167,21 +167,3 @@ impl MeshLevels {
         out
     }
 }
-
-/// `mask` shrunk by `steps` 1-ring steps (a vertex stays set when every vertex within `steps`
-/// edges is set).
-pub fn erode(mask: &[bool], adjacency: (&[u32], &[u32]), steps: usize) -> Vec<bool> {
-    let mut m = mask.to_vec();
-    for _ in 0..steps {
-        let prev = m.clone();
-        for (v, x) in m.iter_mut().enumerate() {
-            if *x {
-                let ring = &adjacency.1[adjacency.0[v] as usize..adjacency.0[v + 1] as usize];
-                if ring.iter().any(|&n| !prev[n as usize]) {
-                    *x = false;
-                }
-            }
-        }
-    }
-    m
-}

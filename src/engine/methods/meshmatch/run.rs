@@ -22,7 +22,7 @@ use crate::engine::spatial::Bvh;
 use super::em::{synthesize, MatchInput, MatchReport, PointPair};
 use super::example::painted_vertices;
 use super::nnf_file::NnfFile;
-use super::sampling::{barycentric_in, input_color, synthesis_colors, synthesis_mesh};
+use super::sampling::{input_color, synthesis_colors, synthesis_mesh};
 use super::{MeshMatchError, MeshMatchParams, ScaleMode};
 use crate::engine::texture::sample::MaterialSampler;
 
@@ -61,7 +61,9 @@ struct SynthesizedField<'a> {
 struct Original<'a> {
     asset: &'a Asset,
     input: &'a Surface,
-    input_face: Vec<u32>,
+    /// The input surface's BVH (the original colour is read at the closest input point: the
+    /// synthesis mesh may be a decimation of the input).
+    input_bvh: Bvh,
     painted: Vec<bool>,
     sampler: MaterialSampler<'a>,
 }
@@ -78,10 +80,10 @@ impl ColorField for SynthesizedField<'_> {
         let f = self.surface.faces[hit.face as usize];
         if let Some(o) = &self.original {
             if f.iter().all(|&v| o.painted[v as usize]) {
-                let face = o.input_face[hit.face as usize] as usize;
-                let b = barycentric_in(o.input.face_positions(face), hit.point);
-                let c = input_color(o.asset, o.input, &o.sampler, face, b);
-                return Some((c.map(|x| x.clamp(0.0, 1.0)), hit.face));
+                if let Some(h) = o.input_bvh.closest_point(p, f32::INFINITY) {
+                    let c = input_color(o.asset, o.input, &o.sampler, h.face as usize, h.bary);
+                    return Some((c.map(|x| x.clamp(0.0, 1.0)), hit.face));
+                }
             }
         }
         let mut c = [0.0f32, 0.0, 0.0, 1.0];
@@ -208,6 +210,7 @@ pub fn run(
         control,
     )?;
     drop(span);
+    warnings.extend(out.report.warnings.iter().cloned());
 
     let nnf_bytes = params.write_nnf.then(|| {
         NnfFile {
@@ -227,7 +230,7 @@ pub fn run(
         original: painted.map(|painted| Original {
             asset: target,
             input: &tgt_surface,
-            input_face: tgt_mesh.input_face,
+            input_bvh: Bvh::build(&tgt_surface.positions, &tgt_surface.faces),
             painted,
             sampler: MaterialSampler::new(target),
         }),

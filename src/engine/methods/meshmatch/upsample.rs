@@ -9,12 +9,21 @@
 //! point is projected onto the finer source level, whose nearest vertex becomes `NNF(v)`. The
 //! rotation is carried as well: `k_v = k + (α_T − α_S) / (2π/A)`, where `α_T` is the angle of
 //! `v`'s tangent in `c`'s frame and `α_S` that of the new source vertex's tangent in `s`'s frame.
+//!
+//! By-example mode (§5.3): a match that lands on a source vertex matches may not use, and has no
+//! usable descendant of the coarse match, is replaced by a usable vertex drawn at random (seeded
+//! per target vertex and level), like the coarsest level's initialization; the EM iterations then
+//! restore coherence. The paper does not say how it keeps upsampled matches inside the example;
+//! without this they survived into the finest level. Moving them to the nearest usable vertex
+//! instead collapsed whole synthesized regions onto the one stripe at the usable border (a striped
+//! capsule's synthesized half came out 100% dark).
 
 use rayon::prelude::*;
 
 use crate::engine::geometry::expmap::LocalFrames;
 use crate::engine::math::dot;
 use crate::engine::multires::Hierarchy;
+use crate::engine::rng::mix;
 use crate::engine::spatial::Bvh;
 
 use super::matcher::Nnf;
@@ -32,8 +41,20 @@ pub struct Side<'a> {
     pub frames: &'a [LocalFrames],
 }
 
+/// The source vertices matches may use on the finer level (by-example mode) and the seed of the
+/// random replacements.
+#[derive(Clone, Copy)]
+pub struct Allowed<'a> {
+    /// Usable source vertices of the finer level.
+    pub mask: &'a [bool],
+    /// Seed of the replacement draws.
+    pub seed: u64,
+}
+
 /// Upsamples `coarse` (the field of level `level + 1`) to level `level`. `source_bvh` is the BVH
-/// of the finer source level. Target vertices in `fixed` take `identity` (by-example mode).
+/// of the finer source level. With `allowed` (by-example mode), every match lands on a usable
+/// source vertex: a usable descendant of the coarse match if there is one, else a random usable
+/// vertex (see the module docs).
 pub fn upsample(
     coarse: &Nnf,
     level: usize,
@@ -41,8 +62,13 @@ pub fn upsample(
     source: &Side<'_>,
     source_bvh: &Bvh,
     spokes: usize,
-    allowed: Option<&[bool]>,
+    allowed: Option<Allowed<'_>>,
 ) -> Nnf {
+    let pool: Vec<u32> = allowed.as_ref().map_or_else(Vec::new, |a| {
+        (0..a.mask.len() as u32)
+            .filter(|&s| a.mask[s as usize])
+            .collect()
+    });
     let th = target.hierarchy;
     let sh = source.hierarchy;
     let fine_t = &th.level(level).surface;
@@ -84,16 +110,17 @@ pub fn upsample(
                 }
                 None => 0,
             };
-            if let Some(ok) = allowed {
-                if !ok[fine as usize] {
-                    // Fall back to a descendant of the coarse match that may be used.
-                    if let Some(&d) = sh
+            if let Some(ok) = &allowed {
+                if !ok.mask[fine as usize] && !pool.is_empty() {
+                    // A descendant of the coarse match that may be used, else a random usable
+                    // vertex.
+                    let draw = mix(ok.seed, level as u64, v as u64) % pool.len() as u64;
+                    fine = sh
                         .children(level + 1, s as u32)
                         .iter()
-                        .find(|&&d| ok[d as usize])
-                    {
-                        fine = d;
-                    }
+                        .copied()
+                        .find(|&d| ok.mask[d as usize])
+                        .unwrap_or(pool[draw as usize]);
                 }
             }
             let alpha_t = angle_in(
