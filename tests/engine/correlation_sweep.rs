@@ -5,7 +5,8 @@
 //! f on the target (relative to the source's own), the coherent patch size (the coherence run
 //! length) and the largest tercile-share deviation; and the coherence κ (0, 1, 4) over both cases
 //! and seeds 1-4 (the bounds of `correlation_nonparametric.rs`). Minutes of runtime: ignored, run with
-//! `cargo test --release --test engine correlation_sweep -- --ignored --nocapture`.
+//! `cargo test --release --test engine correlation_sweep -- --ignored --nocapture` (named `bench_` so
+//! that `.ci/run` skips them).
 
 use serde_json::json;
 
@@ -52,7 +53,7 @@ fn measure_with(c: &Case, options: serde_json::Value, seed: u64) -> (f64, f64, f
 
 #[test]
 #[ignore = "sweep for the README (minutes)"]
-fn nonparametric_feature_weight_sweep() {
+fn bench_nonparametric_feature_weight_sweep() {
     println!("| case | feature weight | seed | r / r_source | mean patch (samples) | coherent edges | tercile deviation |");
     println!("|---|---|---|---|---|---|---|");
     for (name, build) in [
@@ -71,7 +72,7 @@ fn nonparametric_feature_weight_sweep() {
 
 #[test]
 #[ignore = "sweep for the README (minutes)"]
-fn nonparametric_coherence_sweep() {
+fn bench_nonparametric_coherence_sweep() {
     println!("| case | seed | r / r_source κ = 0, 1, 4 | mean patch κ = 0, 1, 4 | coherent edges κ = 0, 1, 4 | tercile deviation κ = 1 |");
     println!("|---|---|---|---|---|---|");
     for (name, build) in [

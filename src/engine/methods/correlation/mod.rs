@@ -203,6 +203,8 @@ pub fn sample_colors(asset: &Asset, input: &Surface, pyramid: &SurfacePyramid) -
     let synthesis = SynthesisMesh {
         surface: Surface::from_triangles(mesh.positions.clone(), mesh.faces.clone()),
         input_face: pyramid.input_face().to_vec(),
+        vertex_link: pyramid.location().to_vec(),
+        decimated: false,
     };
     synthesis_colors(asset, input, &synthesis)
 }
