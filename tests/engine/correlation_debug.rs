@@ -18,8 +18,11 @@ use crate::common::{assert_validator_clean, load_bytes};
 use crate::correlation_common::{at_points, case, pearson};
 use crate::meshmatch_common::{colored_points, run_bytes};
 
+/// The debug files' COLOR_0 is read back at its points, so the target keeps vertex colours
+/// (`output.uv = "keep"`: a UV-less target is otherwise baked through a generated atlas).
 fn constraints(params: serde_json::Value, seed: u64) -> Constraints {
-    let c = json!({"version": 1, "method": "correlation", "seed": seed, "params": params});
+    let c = json!({"version": 1, "method": "correlation", "seed": seed,
+        "output": {"uv": "keep"}, "params": params});
     Constraints::from_json(c.to_string().as_bytes()).unwrap()
 }
 
