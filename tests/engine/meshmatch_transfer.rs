@@ -308,8 +308,10 @@ fn real_pairs_validate_and_keep_the_source_palette() {
         let out = run_bytes(
             (&sn, sb.clone()),
             (&tn, tb),
+            // COLOR_0 is read back: keep the UV-less targets' vertex colours (the default
+            // `output.uv = "auto"` bakes them through a generated atlas instead).
             serde_json::json!({"version": 1, "method": "meshmatch",
-                "output": {"texture_size": 512, "padding": 4},
+                "output": {"texture_size": 512, "padding": 4, "uv": "keep"},
                 "params": {"samples": 16384}}),
         );
         assert_validator_clean(&out.model, &format!("{name}.glb"));
