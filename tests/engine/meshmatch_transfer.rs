@@ -366,8 +366,8 @@ fn real_pairs_validate_and_keep_the_source_palette() {
             .source
             .iter()
             .zip(&stats.output)
-            .filter(|(&a, _)| a >= 0.05)
-            .map(|(&a, &b)| (a, b))
+            .filter(|(a, _)| **a >= 0.05)
+            .map(|(a, b)| (*a, *b))
             .collect();
         let kept = large.iter().filter(|(_, b)| *b >= 0.005).count();
         assert!(
