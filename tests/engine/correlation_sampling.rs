@@ -11,32 +11,11 @@ use retex::engine::methods::correlation::sample_colors;
 
 use crate::common::load_bytes;
 use crate::correlation_common::luminance;
-use crate::elastiface_common::{mesh_glb, texture_png, MeshData};
+use crate::elastiface_common::{grid, mesh_glb, texture_png, MeshData};
 
 /// A flat unit square in the xz plane, `n` × `n` cells, UV = (x, z).
 fn square(n: usize) -> MeshData {
-    let mut positions = Vec::new();
-    let mut uvs = Vec::new();
-    for j in 0..=n {
-        for i in 0..=n {
-            let (x, z) = (i as f32 / n as f32, j as f32 / n as f32);
-            positions.push([x, 0.0, z]);
-            uvs.push([x, z]);
-        }
-    }
-    let id = |i: usize, j: usize| (j * (n + 1) + i) as u32;
-    let mut indices = Vec::new();
-    for j in 0..n {
-        for i in 0..n {
-            indices.extend([id(i, j), id(i, j + 1), id(i + 1, j + 1)]);
-            indices.extend([id(i, j), id(i + 1, j + 1), id(i + 1, j)]);
-        }
-    }
-    MeshData {
-        positions,
-        uvs: Some(uvs),
-        indices,
-    }
+    grid(n, n, |u, v| [u, 0.0, v])
 }
 
 const DARK: f64 = 0.1;

@@ -49,7 +49,7 @@ impl MeshData {
 
 /// A grid over (u, v) in [0,1]² with seam duplicates, mapped through `param`; `closed_u` adds
 /// the seam column. Triangles are oriented by `orient` (outward for closed surfaces).
-fn grid(nu: usize, nv: usize, param: impl Fn(f64, f64) -> [f64; 3]) -> MeshData {
+pub fn grid(nu: usize, nv: usize, param: impl Fn(f64, f64) -> [f64; 3]) -> MeshData {
     let mut positions = Vec::new();
     let mut uvs = Vec::new();
     for j in 0..=nv {

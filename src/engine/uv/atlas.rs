@@ -13,7 +13,7 @@ use rayon::prelude::*;
 
 use super::charts::{adjacency, edge_key, grow, is_disc, split, Adjacency};
 use super::pack::pack;
-use super::param::{local_triangle, lscm, signed_area, triangle_stretch};
+use super::param::{chart_vertices, flatten_chart, local_triangle, signed_area, triangle_stretch};
 use super::report::{atlas_report, chart_report, AtlasReport, Totals, TriangleMeasure};
 use crate::engine::control::{Cancelled, Control};
 use crate::engine::mesh::Surface;
@@ -126,26 +126,12 @@ struct Flat {
 
 /// Flattens a chart, or `None` when it must be split (see the module doc).
 fn flatten(surface: &Surface, faces: &[u32], max_stretch: f64) -> Option<Flat> {
-    let mut vertices: Vec<u32> = faces
-        .iter()
-        .flat_map(|f| surface.faces[*f as usize])
-        .collect();
-    vertices.sort_unstable();
-    vertices.dedup();
+    if faces.len() > 1 && !is_disc(surface, faces) {
+        return None;
+    }
+    let vertices = chart_vertices(surface, faces);
+    let mut frame = flatten_chart(surface, faces, &vertices)?;
     let local = |v: u32| vertices.binary_search(&v).unwrap_or(0);
-    let mut frame = if faces.len() == 1 {
-        let (q, _) = local_triangle(surface.face_positions(faces[0] as usize));
-        let mut frame = vec![[0.0; 2]; vertices.len()];
-        for (k, v) in surface.faces[faces[0] as usize].iter().enumerate() {
-            frame[local(*v)] = q[k];
-        }
-        frame
-    } else {
-        if !is_disc(surface, faces) {
-            return None;
-        }
-        lscm(surface, faces, &vertices)?
-    };
     let tri = |frame: &[[f64; 2]], f: u32| surface.faces[f as usize].map(|v| frame[local(v)]);
     let a2: f64 = faces.iter().map(|f| signed_area(tri(&frame, *f))).sum();
     let a3: f64 = faces

@@ -100,6 +100,32 @@ fn pins(surface: &Surface, vertices: &[u32]) -> (usize, usize) {
     (a, b)
 }
 
+/// The sorted, deduplicated surface vertices of the faces `faces` (a chart's local indexing).
+pub fn chart_vertices(surface: &Surface, faces: &[u32]) -> Vec<u32> {
+    let mut vertices: Vec<u32> = faces
+        .iter()
+        .flat_map(|f| surface.faces[*f as usize])
+        .collect();
+    vertices.sort_unstable();
+    vertices.dedup();
+    vertices
+}
+
+/// Flattens the disc `faces` (vertices `vertices`, from [`chart_vertices`]): a single triangle
+/// exactly (its local frame), more by [`lscm`]. One 2-D position per entry of `vertices`;
+/// `None` when the solve fails.
+pub fn flatten_chart(surface: &Surface, faces: &[u32], vertices: &[u32]) -> Option<Vec<[f64; 2]>> {
+    if let [f] = faces {
+        let (q, _) = local_triangle(surface.face_positions(*f as usize));
+        let mut frame = vec![[0.0; 2]; vertices.len()];
+        for (k, v) in surface.faces[*f as usize].iter().enumerate() {
+            frame[vertices.binary_search(v).unwrap_or(0)] = q[k];
+        }
+        return Some(frame);
+    }
+    lscm(surface, faces, vertices)
+}
+
 /// Free-boundary LSCM of the faces `faces` whose vertices are `vertices` (sorted surface
 /// indices): minimises Σ_t A_t |∇v − rot90(∇u)|² with two pinned vertices. Returns one 2-D
 /// position per entry of `vertices`, in world units up to the conformal scale, or `None` when

@@ -178,13 +178,7 @@ pub(super) fn build(
                 uv: tri.map(|v| uv[v as usize]),
             });
         }
-        if let Some(n) = &prim.normals {
-            let mut normals = vec![[0.0; 3]; g.positions.len()];
-            for ((a, _), id) in &index {
-                normals[*id as usize] = n[*a as usize];
-            }
-            g.normals = Some(normals);
-        }
+        g.normals = split_normals(prim.normals.as_deref(), &index, g.positions.len());
         g.tex_coords.push(uv);
         edits.push(Edit::ReplacePrimitive {
             primitive: p,
@@ -196,4 +190,20 @@ pub(super) fn build(
         tris,
         report: atlas.report,
     }))
+}
+
+/// The normals of a primitive whose vertices were split per chart: `index` maps (original
+/// vertex, chart) → new vertex; each new vertex takes its original's normal. `None` when the
+/// primitive had none.
+pub(crate) fn split_normals(
+    normals: Option<&[[f32; 3]]>,
+    index: &HashMap<(u32, u32), u32>,
+    count: usize,
+) -> Option<Vec<[f32; 3]>> {
+    let n = normals?;
+    let mut out = vec![[0.0; 3]; count];
+    for ((a, _), id) in index {
+        out[*id as usize] = n[*a as usize];
+    }
+    Some(out)
 }

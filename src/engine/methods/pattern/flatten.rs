@@ -20,6 +20,7 @@
 //! not positive (flipped or collapsed) makes the cluster "not flat".
 
 use crate::engine::mesh::Surface;
+use crate::engine::uv::param::{chart_vertices, flatten_chart};
 pub use crate::engine::uv::param::{local_triangle, lscm, signed_area};
 
 /// A flattened cluster.
@@ -68,25 +69,8 @@ impl Flat {
 
 /// Flattens a disc cluster (see the module doc). `None` if the solve fails (degenerate input).
 pub fn flatten(surface: &Surface, faces: &[u32]) -> Option<Flat> {
-    let mut vertices: Vec<u32> = faces
-        .iter()
-        .flat_map(|f| surface.faces[*f as usize])
-        .collect();
-    vertices.sort_unstable();
-    vertices.dedup();
-    let n = vertices.len();
-    let local = |v: u32| vertices.binary_search(&v).unwrap_or(0);
-    let frame = if faces.len() == 1 {
-        let (q, _) = local_triangle(surface.face_positions(faces[0] as usize));
-        let fv = surface.faces[faces[0] as usize];
-        let mut frame = vec![[0.0; 2]; n];
-        for k in 0..3 {
-            frame[local(fv[k])] = q[k];
-        }
-        frame
-    } else {
-        lscm(surface, faces, &vertices)?
-    };
+    let vertices = chart_vertices(surface, faces);
+    let frame = flatten_chart(surface, faces, &vertices)?;
     let mut flat = Flat {
         vertices,
         frame,

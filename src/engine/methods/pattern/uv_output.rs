@@ -24,6 +24,7 @@ use crate::engine::asset::edits::{
 };
 use crate::engine::asset::Asset;
 use crate::engine::mesh::Surface;
+use crate::engine::methods::output::atlas::split_normals;
 use crate::engine::methods::PatternImage;
 
 /// The edits and what they hold.
@@ -114,13 +115,7 @@ pub fn write_uvs(
             }
             g.triangles.push(tri);
         }
-        if let Some(n) = &prim.normals {
-            let mut normals = vec![[0.0; 3]; g.positions.len()];
-            for ((a, _), id) in &index {
-                normals[*id as usize] = n[*a as usize];
-            }
-            g.normals = Some(normals);
-        }
+        g.normals = split_normals(prim.normals.as_deref(), &index, g.positions.len());
         g.tex_coords.push(uv);
         vertices += g.positions.len();
         used.push(p);
