@@ -50,7 +50,15 @@ pub fn shared_asset(relative: &str) -> PathBuf {
 /// Writes `bytes` under `target/test-outputs/NAME` and asserts that the Khronos glTF-Validator
 /// (npm `gltf-validator`, installed by `.ci/run` into `tests/validator/node_modules`) reports
 /// zero errors. Set `RETEX_SKIP_VALIDATOR=1` to skip where node is not available.
+///
+/// Tests run in parallel and several may validate under the same `name`: each name has its own
+/// lock, held while the file is written and validated, so the validator never reads a file that
+/// another test is rewriting.
 pub fn assert_validator_clean(bytes: &[u8], name: &str) {
+    let name_lock = validator_name_lock(name);
+    let _held = name_lock
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner());
     let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/test-outputs");
     std::fs::create_dir_all(&dir).expect("create test output folder");
     let file = dir.join(name);
@@ -81,6 +89,18 @@ pub fn assert_validator_clean(bytes: &[u8], name: &str) {
         "validator errors in {name}: {}",
         report["messages"]
     );
+}
+
+/// The lock of one output file name (one per name, for the life of the test process).
+fn validator_name_lock(name: &str) -> std::sync::Arc<std::sync::Mutex<()>> {
+    use std::collections::HashMap;
+    use std::sync::{Arc, Mutex, OnceLock};
+    static LOCKS: OnceLock<Mutex<HashMap<String, Arc<Mutex<()>>>>> = OnceLock::new();
+    let mut locks = LOCKS
+        .get_or_init(Default::default)
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner());
+    locks.entry(name.to_string()).or_default().clone()
 }
 
 /// Loads a model file from disk with default limits.
