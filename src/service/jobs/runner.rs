@@ -503,6 +503,7 @@ impl Runner {
                 execute(&ctx, &engine_job, &engine_control, &preview_control)
             }))
             .unwrap_or_else(|p| Outcome::Failed(panic_problem(&panic_message(p.as_ref()))));
+            super::heap::release_freed_memory();
             in_use.store(false, Ordering::SeqCst);
             let _ = tx.send(out);
         });
