@@ -465,6 +465,16 @@ fn correlate(
 ) -> Vec<f32> {
     let (w, h) = (texture.width() as i64, texture.height() as i64);
     let mut grids = vec![vec![0.0f32; (w * h) as usize]; 4];
+    let mut occupied = vec![false; h as usize];
+    // Grid coordinates are ≥ 0 by the choice of `shift` (up to round-off), so wrapping is a
+    // compare in the common case (a division only for a mask larger than the pattern).
+    let wrap = |v: i64, n: i64| {
+        if (0..n).contains(&v) {
+            v
+        } else {
+            v.rem_euclid(n)
+        }
+    };
     for (cell, q) in cells.iter().zip(rotated) {
         let u = [q[0] - 0.5 - shift[0] as f32, q[1] - 0.5 - shift[1] as f32];
         let base = [u[0].floor(), u[1].floor()];
@@ -476,13 +486,17 @@ fn correlate(
             cell.weight * cell.colour[2],
             cell.weight,
         ];
-        for (ox, oy, f) in [
-            (0, 0, (1.0 - frac[0]) * (1.0 - frac[1])),
-            (1, 0, frac[0] * (1.0 - frac[1])),
-            (0, 1, (1.0 - frac[0]) * frac[1]),
-            (1, 1, frac[0] * frac[1]),
+        let (x0, x1) = (wrap(bx, w), wrap(bx + 1, w));
+        let (y0, y1) = (wrap(by, h), wrap(by + 1, h));
+        occupied[y0 as usize] = true;
+        occupied[y1 as usize] = true;
+        for (x, y, f) in [
+            (x0, y0, (1.0 - frac[0]) * (1.0 - frac[1])),
+            (x1, y0, frac[0] * (1.0 - frac[1])),
+            (x0, y1, (1.0 - frac[0]) * frac[1]),
+            (x1, y1, frac[0] * frac[1]),
         ] {
-            let index = ((by + oy).rem_euclid(h) * w + (bx + ox).rem_euclid(w)) as usize;
+            let index = (y * w + x) as usize;
             for (grid, v) in grids.iter_mut().zip(values) {
                 grid[index] += f * v;
             }
@@ -493,7 +507,7 @@ fn correlate(
     let mut combined = vec![Complex32::new(0.0, 0.0); fft.spectrum_len()];
     for (c, grid) in grids.iter().enumerate() {
         let factor = if c < 3 { -2.0 } else { 1.0 };
-        let g = fft.forward(grid);
+        let g = fft.forward_rows(grid, &occupied);
         for ((out, gv), tv) in combined.iter_mut().zip(&g).zip(&spectra[c]) {
             *out += gv.conj() * tv * factor;
         }
@@ -504,12 +518,15 @@ fn correlate(
 /// The smallest valid value, refined by parabolas; `(E / Σ J, placement)`.
 fn minimum(image: &ErrorImage, toroidal: bool) -> Option<(f32, Placement)> {
     let (w, h) = (image.width, image.height);
-    let (index, &value) = image
-        .values
-        .iter()
-        .enumerate()
-        .filter(|(_, v)| v.is_finite())
-        .min_by(|a, b| a.1.total_cmp(b.1))?;
+    let (mut index, mut value) = (usize::MAX, f32::INFINITY);
+    for (i, &v) in image.values.iter().enumerate() {
+        if v < value {
+            (index, value) = (i, v);
+        }
+    }
+    if index == usize::MAX {
+        return None;
+    }
     let (dx, dy) = (index % w, index / w);
     let at = |x: i64, y: i64| -> f32 {
         if toroidal {
