@@ -80,7 +80,7 @@ fn surface_glb(s: &Surface) -> Vec<u8> {
         ]
     });
     let mut text = json.to_string().into_bytes();
-    while text.len() % 4 != 0 {
+    while !text.len().is_multiple_of(4) {
         text.push(b' ');
     }
     let total = 12 + 8 + text.len() + 8 + bin.len();
@@ -136,15 +136,19 @@ fn measure(
         atlas.push(stages("atlas_"));
         bake.push(stages("bake") + stages("pad"));
         let a = &out.report.method_report["atlas"];
+        let vertices = &out.report.method_report["target_surface"]["vertices"];
         figures = if a.is_null() {
-            "no atlas".into()
+            format!("{vertices} | no atlas")
         } else {
             format!(
-                "{} | {:.3} | {:.2} | {:.1}",
+                "{vertices} | {} | {:.3} | {:.2} | {:.4}",
                 a["chart_count"],
                 a["l2_stretch"].as_f64().unwrap_or(f64::NAN),
                 a["packing_efficiency"].as_f64().unwrap_or(f64::NAN),
-                a["seam_length"].as_f64().unwrap_or(f64::NAN),
+                // World length × texels per unit / texels per texture width.
+                a["seam_length"].as_f64().unwrap_or(f64::NAN)
+                    * a["texels_per_unit"].as_f64().unwrap_or(f64::NAN)
+                    / a["texture_size"].as_f64().unwrap_or(f64::NAN),
             )
         };
     }
@@ -165,7 +169,7 @@ pub fn run(assets: &Path, runs: usize) -> Result<(), String> {
     };
     let source = read(SOURCE)?;
     println!("Spot → target, `project` with default constraints (output.uv = auto, 2048², padding 4), median of {runs}:\n");
-    println!("| target | vertices | atlas | bake + pad | whole transfer | Blender 4.5 bake | PyMeshLab atlas + transfer | charts | L2 | packing | seam length |");
+    println!("| target | atlas | bake + pad | whole transfer | Blender 4.5 bake | PyMeshLab atlas + transfer | vertices | charts | L2 | packing | seams (texture widths) |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for (frequency, peers) in [32usize, 63, 127].into_iter().zip(PEERS) {
         let sphere = icosphere(1.0, frequency);
@@ -175,21 +179,15 @@ pub fn run(assets: &Path, runs: usize) -> Result<(), String> {
         let target = ("sphere.glb".to_string(), blobs);
         let row = measure(&source, &target, runs)?;
         println!(
-            "| sphere | {} | {:.0} ms | {:.0} ms | {:.0} ms | {} | {} | {} |",
-            sphere.positions.len(),
-            row.atlas_ms,
-            row.bake_ms,
-            row.whole_ms,
-            peers.0,
-            peers.1,
-            row.figures
+            "| sphere | {:.0} ms | {:.0} ms | {:.0} ms | {} | {} | {} |",
+            row.atlas_ms, row.bake_ms, row.whole_ms, peers.0, peers.1, row.figures
         );
     }
     for (label, rel) in TARGETS {
         let target = read(rel)?;
         let row = measure(&source, &target, runs)?;
         println!(
-            "| {label} | | {:.0} ms | {:.0} ms | {:.0} ms | | | {} |",
+            "| {label} | {:.0} ms | {:.0} ms | {:.0} ms | | | {} |",
             row.atlas_ms, row.bake_ms, row.whole_ms, row.figures
         );
     }

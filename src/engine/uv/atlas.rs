@@ -4,6 +4,9 @@
 //! al. 2001; the splitting replaces Lévy's §4 feature-driven seams, see [`super::charts`]), then
 //! turn each chart to its principal axes and pack ([`super::pack`]).
 //!
+//! Control stages: `atlas_charts` (adjacency, growth and the flattening rounds) and
+//! `atlas_pack` (orientation, packing, and each chart laid out and measured, in parallel).
+//!
 //! Charts are parameterised in rounds, in parallel within a round (rayon); every result is
 //! collected in order and charts are finally sorted by their first face, so the atlas does not
 //! depend on the thread count. Single triangles flatten isometrically and are never split, so

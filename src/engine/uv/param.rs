@@ -14,7 +14,9 @@
 //!   vertices" on the boundary chosen by the user or by the farthest pair; the two-sweep
 //!   farthest pair approximates it in linear time).
 //! - The normal equations are solved by sparse Cholesky (faer) with a relative diagonal shift of
-//!   1e-10 so that slivers do not make them singular; the papers use conjugate gradients.
+//!   1e-10 so that slivers do not make them singular; the papers use conjugate gradients. They
+//!   are assembled straight into their compressed-column pattern (vertex pairs sharing a face,
+//!   from one sort of the chart's edges), not through sorted triplets.
 //! - Triangles are weighted by √area per residual row, so the energy is Σ area · |residual|²,
 //!   as eq. 3.
 
