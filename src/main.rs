@@ -92,7 +92,7 @@ enum Command {
         /// Runs per case (the median is reported).
         #[arg(long, default_value_t = 5)]
         runs: usize,
-        /// Which table: `project` (default), `meshmatch`, `elastiface`, `correlation`, `pattern`, or `geometry` (the geometry core on a
+        /// Which table: `project` (default), `atlas` (issue 15: atlas and whole transfer onto UV-less targets), `meshmatch`, `elastiface`, `correlation`, `pattern`, or `geometry` (the geometry core on a
         /// 64K-vertex sphere; needs no assets).
         #[arg(long, default_value = "project")]
         method: String,
@@ -149,13 +149,14 @@ fn main() -> ExitCode {
             method,
         } => match method.as_str() {
             "project" => cli::bench::run(&assets, runs),
+            "atlas" => cli::bench_atlas::run(&assets, runs),
             "meshmatch" => cli::bench_meshmatch::run(&assets, runs),
             "elastiface" => cli::bench_elastiface::run(&assets, runs),
             "correlation" => cli::bench_correlation::run(&assets, runs),
             "pattern" => cli::bench_pattern::run(&assets, runs),
             "geometry" => cli::bench_geometry::run(runs),
             other => Err(format!(
-                "no benchmark for method {other:?}: expected project, meshmatch, elastiface, correlation, pattern or geometry"
+                "no benchmark for method {other:?}: expected project, atlas, meshmatch, elastiface, correlation, pattern or geometry"
             )),
         },
         #[cfg(feature = "service")]

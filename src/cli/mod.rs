@@ -1,6 +1,7 @@
 //! Subcommands of the `retex` binary (`src/main.rs` parses the arguments and calls these).
 
 pub mod bench;
+pub mod bench_atlas;
 pub mod bench_correlation;
 pub mod bench_elastiface;
 pub mod bench_geometry;

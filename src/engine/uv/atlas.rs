@@ -4,6 +4,9 @@
 //! al. 2001; the splitting replaces Lévy's §4 feature-driven seams, see [`super::charts`]), then
 //! turn each chart to its principal axes and pack ([`super::pack`]).
 //!
+//! Control stages: `atlas_charts` (adjacency, growth and the flattening rounds) and
+//! `atlas_pack` (orientation, packing, and each chart laid out and measured, in parallel).
+//!
 //! Charts are parameterised in rounds, in parallel within a round (rayon); every result is
 //! collected in order and charts are finally sorted by their first face, so the atlas does not
 //! depend on the thread count. Single triangles flatten isometrically and are never split, so
@@ -12,11 +15,25 @@
 use rayon::prelude::*;
 
 use super::charts::{adjacency, edge_key, grow, is_disc, split, Adjacency};
-use super::pack::pack;
+use super::pack::{pack, Placement};
 use super::param::{chart_vertices, flatten_chart, local_triangle, signed_area, triangle_stretch};
 use super::report::{atlas_report, chart_report, AtlasReport, Totals, TriangleMeasure};
 use crate::engine::control::{Cancelled, Control};
 use crate::engine::mesh::Surface;
+
+/// Upper estimate of the atlas's working memory per input triangle, bytes: the adjacency and
+/// sorted edge lists (~110 B), the charts' frames and corner UVs (~60 B), the per-triangle
+/// measures (40 B) and the LSCM normal equations and Cholesky factors of the charts solved at
+/// once (~1 KB for the largest charts). Measured: a transfer onto the 320k-triangle sphere
+/// peaks 276 MB above the same transfer onto the 20k-triangle one (~920 B per triangle for the
+/// atlas, the larger surface and its bake together).
+pub const WORKING_SET_BYTES_PER_TRIANGLE: u64 = 1_500;
+
+/// The atlas's estimated working memory for `triangles` input triangles (see
+/// [`WORKING_SET_BYTES_PER_TRIANGLE`]).
+pub fn working_set_bytes(triangles: u64) -> u64 {
+    triangles.saturating_mul(WORKING_SET_BYTES_PER_TRIANGLE)
+}
 
 /// Parameters of the atlas.
 #[derive(Clone, Debug, PartialEq)]
@@ -105,15 +122,16 @@ pub struct Atlas {
     pub charts: Vec<Chart>,
     /// Chart of each face.
     pub face_chart: Vec<u32>,
+    /// UVs of each face's corners (in the face's corner order).
+    pub corner_uv: Vec<[[f32; 2]; 3]>,
     /// Quality figures.
     pub report: AtlasReport,
 }
 
 impl Atlas {
-    /// The UVs of a face's corners.
-    pub fn face_uv(&self, surface: &Surface, face: usize) -> [[f32; 2]; 3] {
-        let c = &self.charts[self.face_chart[face] as usize];
-        surface.faces[face].map(|v| c.uv_of(v).unwrap_or([0.0; 2]))
+    /// The UVs of a face's corners (`surface` is the surface the atlas was made for).
+    pub fn face_uv(&self, _surface: &Surface, face: usize) -> [[f32; 2]; 3] {
+        self.corner_uv[face]
     }
 }
 
@@ -232,13 +250,13 @@ fn flatten_all(
     adj: &Adjacency,
     params: &AtlasParams,
     control: &Control,
+    stage: &crate::engine::control::StageProgress<'_>,
 ) -> Result<Vec<Flat>, AtlasError> {
     let grown = grow(adj, params.max_normal_deviation);
     let mut pending: Vec<Vec<u32>> = Vec::new();
     for g in grown {
         pending.extend(super::charts::components(adj, &g));
     }
-    let stage = control.stage("atlas_charts", surface.faces.len() as u64)?;
     let mut done = Vec::new();
     while !pending.is_empty() {
         control.check()?;
@@ -276,8 +294,9 @@ pub fn generate(
     control: &Control,
 ) -> Result<Atlas, AtlasError> {
     check(surface, params)?;
+    let charts_stage = control.stage("atlas_charts", surface.faces.len() as u64)?;
     let adj = adjacency(surface);
-    let mut flats = flatten_all(surface, &adj, params, control)?;
+    let mut flats = flatten_all(surface, &adj, params, control, &charts_stage)?;
     let stage = control.stage("atlas_pack", flats.len() as u64)?;
     let sizes: Vec<[f64; 2]> = flats.iter_mut().map(orient).collect();
     let (scale, places) =
@@ -287,69 +306,37 @@ pub fn generate(
             gutter: params.gutter,
         })?;
     let width = f64::from(params.texture_size);
-    let mut face_chart = vec![0u32; surface.faces.len()];
-    let mut charts = Vec::with_capacity(flats.len());
-    let mut measures = vec![
-        TriangleMeasure {
-            area: 0.0,
-            l2_sq: 0.0,
-            big: 0.0,
-            small: 0.0,
-            density: 0.0
-        };
-        surface.faces.len()
-    ];
+    // Each chart on its own (in parallel, collected in order).
+    let laid: Vec<Laid> = flats
+        .par_iter()
+        .zip(&places)
+        .zip(&sizes)
+        .map(|((flat, place), size)| lay_out(surface, flat, *place, *size, scale, width))
+        .collect();
+    let nf = surface.faces.len();
+    let mut face_chart = vec![0u32; nf];
+    let mut corner_uv = vec![[[0.0f32; 2]; 3]; nf];
+    let mut measures = vec![TriangleMeasure::default(); nf];
     let mut chart_reports = Vec::with_capacity(flats.len());
-    let mut uv_area = 0.0;
-    for (ci, (flat, place)) in flats.iter().zip(&places).enumerate() {
-        let uv: Vec<[f32; 2]> = flat
-            .frame
-            .iter()
-            .map(|p| {
-                // A 90° turn (x, y) → (h − y, x) keeps the orientation.
-                let q = if place.rotated {
-                    [sizes[ci][1] - p[1], p[0]]
-                } else {
-                    *p
-                };
-                [
-                    ((place.offset[0] + q[0] * scale) / width) as f32,
-                    ((place.offset[1] + q[1] * scale) / width) as f32,
-                ]
-            })
-            .collect();
-        let mut tris = Vec::with_capacity(flat.faces.len());
-        for f in &flat.faces {
+    let mut charts = Vec::with_capacity(flats.len());
+    let (mut uv_area, mut flipped) = (0.0, 0);
+    for (ci, (flat, l)) in flats.into_iter().zip(laid).enumerate() {
+        for (k, f) in flat.faces.iter().enumerate() {
             face_chart[*f as usize] = ci as u32;
-            let fv = surface.faces[*f as usize];
-            let local = |v: u32| flat.vertices.binary_search(&v).unwrap_or(0);
-            let p = surface.face_positions(*f as usize);
-            let area = local_triangle(p).1;
-            let world = fv.map(|v| flat.frame[local(v)]);
-            let texel = fv.map(|v| uv[local(v)].map(|c| f64::from(c) * width));
-            let texel_area = signed_area(texel);
-            uv_area += texel_area / (width * width);
-            let (l2_sq, big, small) =
-                triangle_stretch(p, world).unwrap_or((f64::INFINITY, f64::INFINITY, 0.0));
-            let m = TriangleMeasure {
-                area,
-                l2_sq,
-                big,
-                small,
-                density: (texel_area.max(0.0) / area).sqrt(),
-            };
-            measures[*f as usize] = m;
-            tris.push(m);
+            corner_uv[*f as usize] = l.corners[k];
+            measures[*f as usize] = l.tris[k];
         }
-        chart_reports.push(chart_report(&tris, scale));
+        uv_area += l.uv_area;
+        flipped += l.flipped;
+        chart_reports.push(chart_report(&l.tris, scale));
         charts.push(Chart {
-            faces: flat.faces.clone(),
-            vertices: flat.vertices.clone(),
-            uv,
+            faces: flat.faces,
+            vertices: flat.vertices,
+            uv: l.uv,
         });
         stage.tick(1)?;
     }
-    let seams = seam_length(surface, &face_chart);
+    let seams = seam_length(surface, &adj, &face_chart);
     let mut report = atlas_report(
         &measures,
         Totals {
@@ -360,48 +347,127 @@ pub fn generate(
             texture: (params.texture_size, params.gutter),
         },
     );
-    report.flipped = charts
-        .iter()
-        .flat_map(|c| c.faces.iter().map(move |f| (c, *f)))
-        .filter(|(c, f)| {
-            let q =
-                surface.faces[*f as usize].map(|v| c.uv_of(v).unwrap_or([0.0; 2]).map(f64::from));
-            signed_area(q) <= 0.0
-        })
-        .count();
+    report.flipped = flipped;
     Ok(Atlas {
         charts,
         face_chart,
+        corner_uv,
         report,
     })
 }
 
-/// Total world length and count of edges whose faces lie in different charts.
-fn seam_length(surface: &Surface, face_chart: &[u32]) -> (f64, usize) {
-    let mut edges: std::collections::HashMap<(u32, u32), (u32, bool)> =
-        std::collections::HashMap::with_capacity(surface.faces.len() * 2);
+/// One chart placed in the texture.
+struct Laid {
+    uv: Vec<[f32; 2]>,
+    corners: Vec<[[f32; 2]; 3]>,
+    tris: Vec<TriangleMeasure>,
+    uv_area: f64,
+    flipped: usize,
+}
+
+/// Places a flat chart (turned by `place`, scaled by `scale` texels per unit) and measures its
+/// triangles.
+fn lay_out(
+    surface: &Surface,
+    flat: &Flat,
+    place: Placement,
+    size: [f64; 2],
+    scale: f64,
+    width: f64,
+) -> Laid {
+    let uv: Vec<[f32; 2]> = flat
+        .frame
+        .iter()
+        .map(|p| {
+            // A 90° turn (x, y) → (h − y, x) keeps the orientation.
+            let q = if place.rotated {
+                [size[1] - p[1], p[0]]
+            } else {
+                *p
+            };
+            [
+                ((place.offset[0] + q[0] * scale) / width) as f32,
+                ((place.offset[1] + q[1] * scale) / width) as f32,
+            ]
+        })
+        .collect();
+    let mut out = Laid {
+        corners: Vec::with_capacity(flat.faces.len()),
+        tris: Vec::with_capacity(flat.faces.len()),
+        uv_area: 0.0,
+        flipped: 0,
+        uv: Vec::new(),
+    };
+    for f in &flat.faces {
+        let fv = surface.faces[*f as usize];
+        let local = fv.map(|v| flat.vertices.binary_search(&v).unwrap_or(0));
+        let p = surface.face_positions(*f as usize);
+        let area = local_triangle(p).1;
+        let world = local.map(|i| flat.frame[i]);
+        let corners = local.map(|i| uv[i]);
+        let texel = corners.map(|c| c.map(|x| f64::from(x) * width));
+        let texel_area = signed_area(texel);
+        out.uv_area += texel_area / (width * width);
+        if signed_area(corners.map(|c| c.map(f64::from))) <= 0.0 {
+            out.flipped += 1;
+        }
+        let (l2_sq, big, small) =
+            triangle_stretch(p, world).unwrap_or((f64::INFINITY, f64::INFINITY, 0.0));
+        out.tris.push(TriangleMeasure {
+            area,
+            l2_sq,
+            big,
+            small,
+            density: (texel_area.max(0.0) / area).sqrt(),
+        });
+        out.corners.push(corners);
+    }
+    out.uv = uv;
+    out
+}
+
+/// Total world length and count of edges whose faces lie in different charts: manifold edges
+/// from the adjacency, edges with more than two faces (left unconnected there) from one sort.
+fn seam_length(surface: &Surface, adj: &Adjacency, face_chart: &[u32]) -> (f64, usize) {
+    let length = |a: u32, b: u32| {
+        let p = surface.positions[a as usize];
+        let q = surface.positions[b as usize];
+        (0..3)
+            .map(|k| (f64::from(p[k]) - f64::from(q[k])).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    };
+    let (mut total, mut count) = (0.0, 0);
+    let mut open: Vec<((u32, u32), u32)> = Vec::new();
     for (f, fv) in surface.faces.iter().enumerate() {
         for k in 0..3 {
-            let e = edges
-                .entry(edge_key(fv[k], fv[(k + 1) % 3]))
-                .or_insert((face_chart[f], false));
-            if e.0 != face_chart[f] {
-                e.1 = true;
+            let (a, b) = (fv[k], fv[(k + 1) % 3]);
+            match adj.neighbors[f][k] {
+                Some(g) if (g as usize) > f => {
+                    if face_chart[g as usize] != face_chart[f] {
+                        total += length(a, b);
+                        count += 1;
+                    }
+                }
+                Some(_) => {}
+                None => open.push((edge_key(a, b), face_chart[f])),
             }
         }
     }
-    let mut keys: Vec<(u32, u32)> = edges.iter().filter(|(_, v)| v.1).map(|(k, _)| *k).collect();
-    keys.sort_unstable();
-    let length = keys
-        .iter()
-        .map(|(a, b)| {
-            let p = surface.positions[*a as usize];
-            let q = surface.positions[*b as usize];
-            (0..3)
-                .map(|k| (f64::from(p[k]) - f64::from(q[k])).powi(2))
-                .sum::<f64>()
-                .sqrt()
-        })
-        .sum();
-    (length, keys.len())
+    // Edges without a manifold neighbour: boundary (one face) or non-manifold (three or more).
+    open.sort_unstable();
+    let mut start = 0;
+    while start < open.len() {
+        let mut end = start + 1;
+        while end < open.len() && open[end].0 == open[start].0 {
+            end += 1;
+        }
+        if open[start].1 != open[end - 1].1 {
+            let (a, b) = open[start].0;
+            total += length(a, b);
+            count += 1;
+        }
+        start = end;
+    }
+    (total, count)
 }

@@ -20,7 +20,9 @@
 //! Edges shared by more than two faces are never crossed (they become seams: the documented
 //! fallback for non-manifold input).
 
-use std::collections::{BinaryHeap, HashMap};
+use std::collections::BinaryHeap;
+
+use rayon::prelude::*;
 
 use crate::engine::mesh::Surface;
 
@@ -39,44 +41,57 @@ pub fn edge_key(a: u32, b: u32) -> (u32, u32) {
     (a.min(b), a.max(b))
 }
 
+/// Undirected edge key packed in one integer (smaller vertex in the high half).
+fn packed_key(a: u32, b: u32) -> u64 {
+    let (lo, hi) = edge_key(a, b);
+    (u64::from(lo) << 32) | u64::from(hi)
+}
+
 /// Builds the adjacency (edges with more than two faces are left unconnected).
 pub fn adjacency(surface: &Surface) -> Adjacency {
     let nf = surface.faces.len();
-    let mut edges: HashMap<(u32, u32), Vec<(u32, u8)>> = HashMap::with_capacity(nf * 2);
+    // (edge, face, corner), sorted: the faces of each edge are one run.
+    let mut edges: Vec<(u64, u32, u8)> = Vec::with_capacity(nf * 3);
     for (f, fv) in surface.faces.iter().enumerate() {
         for k in 0..3 {
-            edges
-                .entry(edge_key(fv[k], fv[(k + 1) % 3]))
-                .or_default()
-                .push((f as u32, k as u8));
+            edges.push((packed_key(fv[k], fv[(k + 1) % 3]), f as u32, k as u8));
         }
     }
+    edges.par_sort_unstable();
     let mut neighbors = vec![[None; 3]; nf];
-    for list in edges.values() {
-        if let [(f, k), (g, l)] = list[..] {
+    let mut start = 0;
+    while start < edges.len() {
+        let mut end = start + 1;
+        while end < edges.len() && edges[end].0 == edges[start].0 {
+            end += 1;
+        }
+        if end - start == 2 {
+            let ((_, f, k), (_, g, l)) = (edges[start], edges[start + 1]);
             neighbors[f as usize][k as usize] = Some(g);
             neighbors[g as usize][l as usize] = Some(f);
         }
+        start = end;
     }
-    let mut normals = Vec::with_capacity(nf);
-    let mut areas = Vec::with_capacity(nf);
-    for f in 0..nf {
-        let p = surface.face_positions(f).map(|c| c.map(f64::from));
-        let e1 = [0, 1, 2].map(|k| p[1][k] - p[0][k]);
-        let e2 = [0, 1, 2].map(|k| p[2][k] - p[0][k]);
-        let n = [
-            e1[1] * e2[2] - e1[2] * e2[1],
-            e1[2] * e2[0] - e1[0] * e2[2],
-            e1[0] * e2[1] - e1[1] * e2[0],
-        ];
-        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-        areas.push(0.5 * len);
-        normals.push(if len > 0.0 {
-            n.map(|c| c / len)
-        } else {
-            [0.0; 3]
-        });
-    }
+    let (normals, areas): (Vec<[f64; 3]>, Vec<f64>) = (0..nf)
+        .into_par_iter()
+        .map(|f| {
+            let p = surface.face_positions(f).map(|c| c.map(f64::from));
+            let e1 = [0, 1, 2].map(|k| p[1][k] - p[0][k]);
+            let e2 = [0, 1, 2].map(|k| p[2][k] - p[0][k]);
+            let n = [
+                e1[1] * e2[2] - e1[2] * e2[1],
+                e1[2] * e2[0] - e1[0] * e2[2],
+                e1[0] * e2[1] - e1[1] * e2[0],
+            ];
+            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            let normal = if len > 0.0 {
+                n.map(|c| c / len)
+            } else {
+                [0.0; 3]
+            };
+            (normal, 0.5 * len)
+        })
+        .unzip();
     Adjacency {
         neighbors,
         normals,
@@ -168,38 +183,48 @@ fn cosine(sum: [f64; 3], n: [f64; 3]) -> f64 {
 /// consistently, V − E + F = 1 and every boundary vertex on exactly two boundary edges (one
 /// boundary loop, no pinched vertex).
 pub fn is_disc(surface: &Surface, faces: &[u32]) -> bool {
-    let mut edges: HashMap<(u32, u32), (u32, i32)> = HashMap::with_capacity(faces.len() * 2);
+    // (edge, +1 when the face runs along it from the smaller vertex, −1 otherwise), sorted.
+    let mut edges: Vec<(u64, i8)> = Vec::with_capacity(faces.len() * 3);
+    let mut vertices: Vec<u32> = Vec::with_capacity(faces.len() * 3);
     for f in faces {
         let fv = surface.faces[*f as usize];
         for k in 0..3 {
             let (a, b) = (fv[k], fv[(k + 1) % 3]);
-            let e = edges.entry(edge_key(a, b)).or_insert((0, 0));
-            e.0 += 1;
-            e.1 += if a < b { 1 } else { -1 };
+            edges.push((packed_key(a, b), if a < b { 1 } else { -1 }));
         }
+        vertices.extend_from_slice(&fv);
     }
-    let mut vertices: Vec<u32> = faces
-        .iter()
-        .flat_map(|f| surface.faces[*f as usize])
-        .collect();
+    edges.sort_unstable();
     vertices.sort_unstable();
     vertices.dedup();
-    let chi = vertices.len() as i64 - edges.len() as i64 + faces.len() as i64;
-    if chi != 1 {
-        return false;
-    }
-    let mut boundary_degree: HashMap<u32, u32> = HashMap::new();
-    for ((a, b), (count, orient)) in &edges {
-        match count {
+    let mut boundary: Vec<u32> = Vec::new();
+    let mut edge_count = 0i64;
+    let mut start = 0;
+    while start < edges.len() {
+        let mut end = start + 1;
+        while end < edges.len() && edges[end].0 == edges[start].0 {
+            end += 1;
+        }
+        edge_count += 1;
+        match end - start {
             1 => {
-                *boundary_degree.entry(*a).or_default() += 1;
-                *boundary_degree.entry(*b).or_default() += 1;
+                let key = edges[start].0;
+                boundary.push((key >> 32) as u32);
+                boundary.push(key as u32);
             }
-            2 if *orient == 0 => {}
+            2 if edges[start].1 + edges[start + 1].1 == 0 => {}
             _ => return false,
         }
+        start = end;
     }
-    !boundary_degree.is_empty() && boundary_degree.values().all(|d| *d == 2)
+    let chi = vertices.len() as i64 - edge_count + faces.len() as i64;
+    if chi != 1 || boundary.is_empty() {
+        return false;
+    }
+    boundary.sort_unstable();
+    // Every boundary vertex exactly twice.
+    boundary.chunks(2).all(|c| c[0] == c[1])
+        && boundary.windows(3).all(|w| !(w[0] == w[1] && w[1] == w[2]))
 }
 
 /// Splits a chart of two or more faces into the connected components of its two median halves
@@ -239,21 +264,21 @@ pub fn split(surface: &Surface, adj: &Adjacency, faces: &[u32]) -> Vec<Vec<u32>>
 
 /// Edge-connected components of a sorted face list, each sorted, ordered by first face.
 pub fn components(adj: &Adjacency, faces: &[u32]) -> Vec<Vec<u32>> {
-    let mut seen: HashMap<u32, bool> = faces.iter().map(|f| (*f, false)).collect();
+    let mut seen = vec![false; faces.len()];
     let mut out = Vec::new();
-    for f in faces {
-        if seen[f] {
+    for (start, f) in faces.iter().enumerate() {
+        if seen[start] {
             continue;
         }
         let mut comp = vec![*f];
-        seen.insert(*f, true);
+        seen[start] = true;
         let mut i = 0;
         while i < comp.len() {
             let g = comp[i];
             for h in adj.neighbors[g as usize].iter().flatten() {
-                if let Some(s) = seen.get_mut(h) {
-                    if !*s {
-                        *s = true;
+                if let Ok(at) = faces.binary_search(h) {
+                    if !seen[at] {
+                        seen[at] = true;
                         comp.push(*h);
                     }
                 }

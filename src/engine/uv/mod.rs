@@ -10,5 +10,5 @@ pub mod pack;
 pub mod param;
 pub mod report;
 
-pub use atlas::{generate, Atlas, AtlasError, AtlasParams, Chart};
+pub use atlas::{generate, working_set_bytes, Atlas, AtlasError, AtlasParams, Chart};
 pub use report::{AtlasReport, ChartReport};

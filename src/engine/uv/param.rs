@@ -14,7 +14,9 @@
 //!   vertices" on the boundary chosen by the user or by the farthest pair; the two-sweep
 //!   farthest pair approximates it in linear time).
 //! - The normal equations are solved by sparse Cholesky (faer) with a relative diagonal shift of
-//!   1e-10 so that slivers do not make them singular; the papers use conjugate gradients.
+//!   1e-10 so that slivers do not make them singular; the papers use conjugate gradients. They
+//!   are assembled straight into their compressed-column pattern (vertex pairs sharing a face,
+//!   from one sort of the chart's edges), not through sorted triplets.
 //! - Triangles are weighted by √area per residual row, so the energy is Σ area · |residual|²,
 //!   as eq. 3.
 
@@ -155,10 +157,23 @@ pub fn lscm(surface: &Surface, faces: &[u32], vertices: &[u32]) -> Option<Vec<[f
             m += 1;
         }
     }
-    let mut triplets: Vec<(usize, usize, f64)> = Vec::with_capacity(faces.len() * 72);
+    // Corners in local indices, then the pattern: every free unknown of a vertex couples with
+    // every free unknown of the vertex itself and of its edge neighbours.
+    let corners: Vec<[usize; 3]> = faces
+        .iter()
+        .map(|f| {
+            let fv = surface.faces[*f as usize];
+            let mut c = [0usize; 3];
+            for k in 0..3 {
+                c[k] = vertices.binary_search(&fv[k]).ok()?;
+            }
+            Some(c)
+        })
+        .collect::<Option<_>>()?;
+    let pattern = Arc::new(pattern_of(&corners, n, &free, m)?);
+    let mut values = vec![0.0f64; pattern.nnz()];
     let mut rhs = vec![0.0f64; m];
-    for f in faces {
-        let fv = surface.faces[*f as usize];
+    for (f, li) in faces.iter().zip(&corners) {
         let (q, area) = local_triangle(surface.face_positions(*f as usize));
         if area <= 0.0 {
             continue;
@@ -176,10 +191,9 @@ pub fn lscm(surface: &Surface, faces: &[u32], vertices: &[u32]) -> Option<Vec<[f
             // rot90(g) = (−g.y, g.x); residual = Σ v_j g_j[c] − Σ u_j rot90(g_j)[c].
             let mut row: [(usize, f64); 6] = [(0, 0.0); 6];
             for j in 0..3 {
-                let li = vertices.binary_search(&fv[j]).ok()?;
                 let rot = if c == 0 { -g[j][1] } else { g[j][0] };
-                row[2 * j] = (2 * li, -rot * w);
-                row[2 * j + 1] = (2 * li + 1, g[j][c] * w);
+                row[2 * j] = (2 * li[j], -rot * w);
+                row[2 * j + 1] = (2 * li[j] + 1, g[j][c] * w);
             }
             let mut b = 0.0;
             for (idx, coef) in &row {
@@ -188,41 +202,85 @@ pub fn lscm(surface: &Surface, faces: &[u32], vertices: &[u32]) -> Option<Vec<[f
                 }
             }
             for (i, ci) in &row {
-                if free[*i] == usize::MAX {
+                let fi = free[*i];
+                if fi == usize::MAX {
                     continue;
                 }
-                rhs[free[*i]] += ci * b;
+                rhs[fi] += ci * b;
+                let rows = pattern.column(fi);
+                let base = pattern.col_ptr()[fi];
                 for (j, cj) in &row {
-                    if free[*j] != usize::MAX {
-                        triplets.push((free[*i], free[*j], ci * cj));
+                    let fj = free[*j];
+                    if fj != usize::MAX {
+                        let at = base + rows.binary_search(&fj).ok()?;
+                        values[at] += ci * cj;
                     }
                 }
             }
         }
     }
-    let x = solve_normal(m, triplets, &rhs)?;
+    let x = solve_normal(pattern, values, &rhs)?;
     let value = |i: usize| fixed[i].unwrap_or_else(|| x[free[i]]);
     Some((0..n).map(|i| [value(2 * i), value(2 * i + 1)]).collect())
 }
 
-/// Solves the assembled symmetric positive system.
-fn solve_normal(m: usize, mut triplets: Vec<(usize, usize, f64)>, rhs: &[f64]) -> Option<Vec<f64>> {
-    let mut columns: Vec<Vec<usize>> = vec![Vec::new(); m];
-    for (i, j, _) in &triplets {
-        columns[*j].push(*i);
-    }
-    let pattern = Arc::new(SparsityPattern::from_columns(&columns).ok()?);
-    let mut values = vec![0.0f64; pattern.nnz()];
-    let mut max_diag = 0.0f64;
-    triplets.sort_unstable_by_key(|t| (t.1, t.0));
-    for (i, j, v) in &triplets {
-        let at = pattern.find(*i, *j)?;
-        values[at] += v;
-        if i == j {
-            max_diag = max_diag.max(values[at]);
+/// The sparsity pattern of the LSCM normal equations over the `m` free unknowns (`free` maps
+/// unknown `2i + c` of local vertex `i` to its column, `usize::MAX` when pinned): vertex pairs
+/// sharing a face, from one sort of the faces' directed edges.
+fn pattern_of(
+    corners: &[[usize; 3]],
+    n: usize,
+    free: &[usize],
+    m: usize,
+) -> Option<SparsityPattern> {
+    let mut pairs: Vec<u64> = Vec::with_capacity(corners.len() * 6 + n);
+    for c in corners {
+        for k in 0..3 {
+            let (a, b) = (c[k] as u64, c[(k + 1) % 3] as u64);
+            pairs.push((a << 32) | b);
+            pairs.push((b << 32) | a);
         }
     }
-    for p in pattern.diagonal_positions() {
+    pairs.extend((0..n as u64).map(|i| (i << 32) | i));
+    pairs.sort_unstable();
+    pairs.dedup();
+    let mut columns: Vec<Vec<usize>> = vec![Vec::new(); m];
+    let mut start = 0;
+    while start < pairs.len() {
+        let a = (pairs[start] >> 32) as usize;
+        let mut end = start;
+        while end < pairs.len() && (pairs[end] >> 32) as usize == a {
+            end += 1;
+        }
+        for ca in 0..2 {
+            let col = free[2 * a + ca];
+            if col == usize::MAX {
+                continue;
+            }
+            let list = &mut columns[col];
+            for p in &pairs[start..end] {
+                let b = (p & 0xffff_ffff) as usize;
+                list.extend(
+                    (0..2)
+                        .map(|cb| free[2 * b + cb])
+                        .filter(|r| *r != usize::MAX),
+                );
+            }
+        }
+        start = end;
+    }
+    SparsityPattern::from_columns(&columns).ok()
+}
+
+/// Solves the assembled symmetric positive system (values in `pattern`'s order).
+fn solve_normal(
+    pattern: Arc<SparsityPattern>,
+    mut values: Vec<f64>,
+    rhs: &[f64],
+) -> Option<Vec<f64>> {
+    let diagonal = pattern.diagonal_positions();
+    let max_diag = diagonal.iter().map(|p| values[*p]).fold(0.0f64, f64::max);
+    for p in diagonal {
         values[p] += REGULARISATION * max_diag.max(1e-300);
     }
     let matrix = SymmetricMatrix::new(pattern.clone(), values).ok()?;

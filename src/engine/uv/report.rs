@@ -73,7 +73,7 @@ pub struct AtlasReport {
 }
 
 /// Per-triangle measures gathered by the atlas.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Default)]
 pub struct TriangleMeasure {
     /// Surface area.
     pub area: f64,

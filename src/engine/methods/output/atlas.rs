@@ -108,6 +108,7 @@ pub(super) fn build(
     control: &Control,
     warnings: &mut Vec<String>,
 ) -> Result<Option<AtlasLayout>, Cancelled> {
+    let _weld_stage = control.stage("atlas_weld", 1)?;
     let (surface, origin) = weld(asset, prims);
     let params = AtlasParams {
         texture_size,
@@ -124,9 +125,16 @@ pub(super) fn build(
             return Ok(None);
         }
     };
-    // (primitive, triangle) -> surface face.
-    let face_of: HashMap<(usize, usize), usize> =
-        origin.iter().enumerate().map(|(f, o)| (*o, f)).collect();
+    // (primitive, triangle) -> surface face (u32::MAX: dropped by the weld).
+    let mut face_of: HashMap<usize, Vec<u32>> = prims
+        .iter()
+        .map(|&(p, _)| (p, vec![u32::MAX; asset.primitives[p].triangles.len()]))
+        .collect();
+    for (f, (p, t)) in origin.iter().enumerate() {
+        if let Some(list) = face_of.get_mut(p) {
+            list[*t] = f as u32;
+        }
+    }
     let mut edits = Vec::new();
     let mut tris = Vec::new();
     for &(p, ii) in prims {
@@ -134,13 +142,17 @@ pub(super) fn build(
         let prim = &asset.primitives[p];
         let inst = &asset.instances[ii];
         // Corner UV and chart of (triangle, corner k).
+        let faces = &face_of[&p];
         let corner = |ti: usize, k: usize| -> Option<(u32, [f32; 2])> {
-            let f = *face_of.get(&(p, ti))?;
+            let f = faces[ti];
+            if f == u32::MAX {
+                return None;
+            }
             // Corner k of the primitive triangle sits at the same slot of the surface face,
             // after the swap of corners 1 and 2 for mirroring instances.
             let slot = if inst.mirrors() { [0, 2, 1][k] } else { k };
-            let uv = atlas.face_uv(&surface, f)[slot];
-            Some((atlas.face_chart[f], uv))
+            let uv = atlas.face_uv(&surface, f as usize)[slot];
+            Some((atlas.face_chart[f as usize], uv))
         };
         let mut fallback: Vec<Option<[f32; 2]>> = vec![None; prim.positions.len()];
         for (ti, t) in prim.triangles.iter().enumerate() {
@@ -152,17 +164,29 @@ pub(super) fn build(
         }
         let mut g = PrimitiveGeometry::default();
         let mut uv = Vec::new();
+        // (original vertex, chart) -> new vertex: the first chart of each vertex in `first`,
+        // the others (seam vertices) in `index`.
+        let mut first: Vec<Option<(u32, u32)>> = vec![None; prim.positions.len()];
         let mut index: HashMap<(u32, u32), u32> = HashMap::new();
         for (ti, t) in prim.triangles.iter().enumerate() {
             let mut tri = [0u32; 3];
             for (k, a) in t.iter().enumerate() {
                 let (chart, coord) = corner(ti, k)
                     .unwrap_or((u32::MAX, fallback[*a as usize].unwrap_or([0.0, 0.0])));
-                tri[k] = *index.entry((*a, chart)).or_insert_with(|| {
+                let mut add = || {
                     g.positions.push(prim.positions[*a as usize]);
                     uv.push(coord);
                     (g.positions.len() - 1) as u32
-                });
+                };
+                tri[k] = match first[*a as usize] {
+                    Some((c, id)) if c == chart => id,
+                    Some(_) => *index.entry((*a, chart)).or_insert_with(add),
+                    None => {
+                        let id = add();
+                        first[*a as usize] = Some((chart, id));
+                        id
+                    }
+                };
             }
             g.triangles.push(tri);
             let world = t.map(|v| to_f32(inst.transform_point(prim.positions[v as usize])));
@@ -177,6 +201,11 @@ pub(super) fn build(
                 normal,
                 uv: tri.map(|v| uv[v as usize]),
             });
+        }
+        for (a, f) in first.iter().enumerate() {
+            if let Some((c, id)) = f {
+                index.insert((a as u32, *c), *id);
+            }
         }
         g.normals = split_normals(prim.normals.as_deref(), &index, g.positions.len());
         g.tex_coords.push(uv);

@@ -196,8 +196,28 @@ impl Method for Project {
         ProjectParams::from_constraints(constraints).map(drop)
     }
 
-    fn working_set(&self, constraints: &Constraints, _: u64) -> Option<super::WorkingSet> {
-        Some(super::texture_working_set(constraints))
+    fn working_set(
+        &self,
+        constraints: &Constraints,
+        input_triangles: u64,
+    ) -> Option<super::WorkingSet> {
+        let texture = super::texture_working_set(constraints);
+        // A UV-less target gets an atlas (output.uv = auto): count it for every input triangle,
+        // since which inputs lack UVs is not known before they are read.
+        let atlas = match constraints.output.uv {
+            crate::engine::asset::constraints::UvMode::Auto => {
+                crate::engine::uv::working_set_bytes(input_triangles)
+            }
+            _ => 0,
+        };
+        Some(super::WorkingSet {
+            bytes: texture.bytes.saturating_add(atlas),
+            field: if atlas > texture.bytes {
+                "output.uv"
+            } else {
+                texture.field
+            },
+        })
     }
 
     fn run(&self, input: &MethodInput<'_>, control: &Control) -> Result<MethodOutput, MethodError> {

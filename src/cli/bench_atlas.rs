@@ -1,0 +1,195 @@
+//! `retex bench --method atlas`: the UV atlas of issue 15 (`src/engine/uv/`) and the whole
+//! `retex transfer` (`project`, Spot → a UV-less target: load, align, atlas, 2048² bake, pad,
+//! export) on geodesic spheres of 10k / 40k / 160k vertices and on the shared UV-less targets,
+//! next to the peers' whole-process figures that issue 15 gives (Blender 4.5 Smart UV Project +
+//! bake; PyMeshLab Voronoi atlas + transfer). The atlas time is the sum of the transfer's
+//! `atlas_*` stages (weld, charts, packing and the split primitives), measured by `Control`;
+//! the whole time is the wall clock around `transfer`. Prints Markdown for the README.
+
+use std::path::Path;
+use std::time::Instant;
+
+use retex::engine::asset::constraints::Constraints;
+use retex::engine::asset::BlobSet;
+use retex::engine::control::Control;
+use retex::engine::mesh::primitives::icosphere;
+use retex::engine::mesh::Surface;
+use retex::engine::pipeline::{transfer, ModelInput, TransferInput};
+
+/// The textured source of every transfer.
+const SOURCE: &str = "src_spot_keenan/spot_textured_derived.glb";
+
+/// Shared UV-less targets: (label, path).
+const TARGETS: [(&str, &str); 6] = [
+    ("cat", "tgt_cat_odedstein/cat-low-resolution_derived.glb"),
+    ("fish", "tgt_fish_remeshed_odedstein/fish_derived.glb"),
+    (
+        "Demosthenes (scan, open)",
+        "tgt_demosthenes_bust_odedstein/demosthenes-low-res_derived.glb",
+    ),
+    (
+        "Nefertiti (scan)",
+        "tgt_nefertiti_bust_odedstein/nefertiti-lowres_derived.glb",
+    ),
+    ("koala", "perf_koala_odedstein/koala_derived.glb"),
+    ("skull (genus 2)", "perf_skull_odedstein/skull_derived.glb"),
+];
+
+/// Peers' whole-process times from issue 15 (Blender 4.5, PyMeshLab), per sphere size.
+const PEERS: [(&str, &str); 3] = [("4.9 s", "5.1 s"), ("5.5 s", "5.5 s"), ("9.6 s", "10.6 s")];
+
+fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// A GLB of a surface: positions and u32 indices, no UVs, no normals, no material.
+fn surface_glb(s: &Surface) -> Vec<u8> {
+    let mut bin = Vec::new();
+    let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
+    for p in &s.positions {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+            bin.extend_from_slice(&p[k].to_le_bytes());
+        }
+    }
+    let pos_len = bin.len();
+    for f in &s.faces {
+        for v in f {
+            bin.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    let json = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "buffers": [{"byteLength": bin.len()}],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": pos_len, "target": 34962},
+            {"buffer": 0, "byteOffset": pos_len, "byteLength": bin.len() - pos_len, "target": 34963}
+        ],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": s.positions.len(), "type": "VEC3", "min": lo, "max": hi},
+            {"bufferView": 1, "componentType": 5125, "count": s.faces.len() * 3, "type": "SCALAR"}
+        ]
+    });
+    let mut text = json.to_string().into_bytes();
+    while !text.len().is_multiple_of(4) {
+        text.push(b' ');
+    }
+    let total = 12 + 8 + text.len() + 8 + bin.len();
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&(total as u32).to_le_bytes());
+    out.extend_from_slice(&(text.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(&text);
+    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"BIN\0");
+    out.extend_from_slice(&bin);
+    out
+}
+
+/// Medians of one target over `runs` transfers.
+struct Row {
+    atlas_ms: f64,
+    bake_ms: f64,
+    whole_ms: f64,
+    figures: String,
+}
+
+fn measure(
+    source: &(String, BlobSet),
+    target: &(String, BlobSet),
+    runs: usize,
+) -> Result<Row, String> {
+    let (mut atlas, mut bake, mut whole) = (Vec::new(), Vec::new(), Vec::new());
+    let mut figures = String::new();
+    for _ in 0..runs {
+        let input = TransferInput::pair(
+            ModelInput {
+                main: &source.0,
+                blobs: &source.1,
+            },
+            ModelInput {
+                main: &target.0,
+                blobs: &target.1,
+            },
+            Constraints::default(),
+        );
+        let t0 = Instant::now();
+        let out = transfer(&input, &Control::new()).map_err(|e| e.to_string())?;
+        whole.push(t0.elapsed().as_secs_f64() * 1e3);
+        let stages = |prefix: &str| -> f64 {
+            (out.report.timings.iter())
+                .filter(|t| t.stage.starts_with(prefix))
+                .map(|t| t.ms)
+                .sum()
+        };
+        atlas.push(stages("atlas_"));
+        bake.push(stages("bake") + stages("pad"));
+        let a = &out.report.method_report["atlas"];
+        let vertices = &out.report.method_report["target_surface"]["vertices"];
+        figures = if a.is_null() {
+            format!("{vertices} | no atlas")
+        } else {
+            format!(
+                "{vertices} | {} | {:.3} | {:.2} | {:.4}",
+                a["chart_count"],
+                a["l2_stretch"].as_f64().unwrap_or(f64::NAN),
+                a["packing_efficiency"].as_f64().unwrap_or(f64::NAN),
+                // World length × texels per unit / texels per texture width.
+                a["seam_length"].as_f64().unwrap_or(f64::NAN)
+                    * a["texels_per_unit"].as_f64().unwrap_or(f64::NAN)
+                    / a["texture_size"].as_f64().unwrap_or(f64::NAN),
+            )
+        };
+    }
+    Ok(Row {
+        atlas_ms: median(atlas),
+        bake_ms: median(bake),
+        whole_ms: median(whole),
+        figures,
+    })
+}
+
+/// Runs the benchmark `runs` times per target and prints the tables.
+pub fn run(assets: &Path, runs: usize) -> Result<(), String> {
+    let runs = runs.max(1);
+    let read = |rel: &str| {
+        let p = assets.join(rel);
+        BlobSet::from_path(&p).map_err(|e| format!("{}: {e}", p.display()))
+    };
+    let source = read(SOURCE)?;
+    println!("Spot → target, `project` with default constraints (output.uv = auto, 2048², padding 4), median of {runs}:\n");
+    println!("| target | atlas | bake + pad | whole transfer | Blender 4.5 bake | PyMeshLab atlas + transfer | vertices | charts | L2 | packing | seams (texture widths) |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    for (frequency, peers) in [32usize, 63, 127].into_iter().zip(PEERS) {
+        let sphere = icosphere(1.0, frequency);
+        let glb = surface_glb(&sphere);
+        let mut blobs = BlobSet::new();
+        blobs.insert("sphere.glb", glb);
+        let target = ("sphere.glb".to_string(), blobs);
+        let row = measure(&source, &target, runs)?;
+        println!(
+            "| sphere | {:.0} ms | {:.0} ms | {:.0} ms | {} | {} | {} |",
+            row.atlas_ms, row.bake_ms, row.whole_ms, peers.0, peers.1, row.figures
+        );
+    }
+    for (label, rel) in TARGETS {
+        let target = read(rel)?;
+        let row = measure(&source, &target, runs)?;
+        println!(
+            "| {label} | {:.0} ms | {:.0} ms | {:.0} ms | | | {} |",
+            row.atlas_ms, row.bake_ms, row.whole_ms, row.figures
+        );
+    }
+    Ok(())
+}
