@@ -13,6 +13,10 @@
 // canvas; a slow meshmatch job is canceled from its page; an out-of-range parameter is refused
 // next to its field by the page, and a malformed one by the server (problem+json shown next to
 // the field it names); with tokens configured, the page asks for one, and the token works.
+// Also: files dropped onto the drop zones (dragenter/dragover/drop with a DataTransfer built in
+// the page) are what the job is submitted with; the constraints' Copy button puts them on the
+// clipboard; the job list is newest first and follows a running job from its event stream
+// (GET /v1/events) without a single polling request.
 // Screenshots go to target/browser/ and each is checked for being non-blank. Exits non-zero on
 // any failure and prints one summary line.
 
@@ -152,6 +156,8 @@ async function main() {
   const server = await startServer({});
   const context = await browser.newContext({ viewport: { width: 1280, height: 900 } });
   await overrideStatic(context);
+  // The test's model files, for a submission made by a script inside the page.
+  await context.route(/\/__(source|target)$/, (r) => r.fulfill({ path: r.request().url().endsWith('source') ? SOURCE : TARGET, contentType: 'model/gltf-binary' }));
   const page = await context.newPage();
   page.base = server.base;
   const pageErrors = [];
@@ -193,6 +199,110 @@ async function main() {
     const previewMs = timings.filter(([k]) => k.startsWith('preview')).reduce((a, [, v]) => a + v, 0);
     const totalMs = timings.reduce((a, [, v]) => a + v, 0);
     return `job ${id.slice(0, 8)}, previews ${previewMs.toFixed(0)} of ${totalMs.toFixed(0)} ms, canvas variance ${st.variance.toFixed(0)}, ${(st.varied * 100).toFixed(0)} % off-background (screenshot ${viewerShot.variance.toFixed(0)})`;
+  });
+
+  await step('drag and drop onto the drop zones, copy the constraints', async () => {
+    await page.goto(`${server.base}/#/submit`);
+    await page.waitForSelector('#method option', { state: 'attached' });
+    await page.selectOption('#method', 'project');
+    for (const [part, file] of [['source', SOURCE], ['target', TARGET]]) {
+      const zone = `[data-part=${part}]`;
+      const over = await page.evaluate(async ({ zone, name, b64 }) => {
+        const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+        const dt = new DataTransfer();
+        dt.items.add(new File([bytes], name, { type: 'model/gltf-binary' }));
+        const z = document.querySelector(zone);
+        const fire = (type) => z.dispatchEvent(new DragEvent(type, { bubbles: true, cancelable: true, dataTransfer: dt }));
+        fire('dragenter');
+        const refused = !fire('dragover'); // preventDefault: the zone accepts the drop
+        const highlighted = z.classList.contains('over');
+        fire('drop');
+        return { refused, highlighted, after: z.classList.contains('over') };
+      }, { zone, name: path.basename(file), b64: fs.readFileSync(file).toString('base64') });
+      if (!over.refused || !over.highlighted || over.after) throw new Error(`${part} zone drag state ${JSON.stringify(over)}`);
+      const shown = await page.textContent(`${zone} .files`);
+      const kb = (fs.statSync(file).size / 1024).toFixed(1);
+      if (!shown.includes(path.basename(file)) || !shown.includes(kb)) throw new Error(`${part} zone shows ${shown}`);
+    }
+    await page.fill(`${output('texture_size')} input`, '64');
+    await page.click('#submit-button');
+    const id = await openJob(page);
+    await page.waitForFunction(() => document.querySelector('#job-status')?.textContent === 'succeeded', null, { timeout: 120000 });
+    // The server got both dropped files (project needs both): each has its preview.
+    const doc = await page.evaluate(async (u) => (await fetch(u)).json(), `/v1/jobs/${id}`);
+    const names = doc.links.artifacts.map((a) => a.name);
+    for (const want of ['source_preview.png', 'target_preview.png']) if (!names.includes(want)) throw new Error(`no ${want} in ${names}`);
+    // Copy: the clipboard holds exactly the constraints shown.
+    await page.waitForFunction(() => document.querySelector('#job-constraints')?.textContent.length > 2);
+    await page.context().grantPermissions(['clipboard-read', 'clipboard-write'], { origin: server.base });
+    await page.evaluate(() => navigator.clipboard.writeText(''));
+    await page.click('#copy-constraints');
+    const shownText = await page.textContent('#job-constraints');
+    let copied = '';
+    for (let i = 0; i < 20 && !copied; i++) {
+      copied = await page.evaluate(() => navigator.clipboard.readText());
+      if (!copied) await page.waitForTimeout(100);
+    }
+    if (copied !== shownText) throw new Error(`clipboard holds ${JSON.stringify(copied.slice(0, 80))}`);
+    const c = JSON.parse(copied);
+    if (c.method !== 'project' || c.output?.texture_size !== 64) throw new Error(`copied ${copied.slice(0, 120)}`);
+    return `job ${id.slice(0, 8)}, ${copied.length} characters copied`;
+  });
+
+  await step('job list: newest first, live from the event stream (no polling)', async () => {
+    const requests = [];
+    const onRequest = (r) => requests.push({ t: Date.now(), url: new URL(r.url()).pathname + new URL(r.url()).search });
+    page.on('request', onRequest);
+    try {
+      await page.goto(`${server.base}/#/`);
+      await page.waitForSelector('#live:not(:empty)');
+      if ((await page.textContent('#live')) !== 'live') throw new Error(`list not live: ${await page.textContent('#live')}`);
+      // Record every change of every row, as the page shows it.
+      await page.evaluate(() => {
+        window.rowLog = [];
+        new MutationObserver(() => {
+          for (const tr of document.querySelectorAll('#job-rows tr')) {
+            const pct = tr.querySelector('[role=progressbar]')?.getAttribute('aria-valuenow');
+            const last = window.rowLog.findLast((x) => x.id === tr.dataset.id);
+            if (!last || last.status !== tr.dataset.status || last.pct !== pct) window.rowLog.push({ t: Date.now(), id: tr.dataset.id, status: tr.dataset.status, pct });
+          }
+        }).observe(document.querySelector('#job-rows'), { childList: true, subtree: true, attributes: true });
+      });
+      // A job submitted by a script (not the page): the page learns of it from the stream.
+      const id = await page.evaluate(async () => {
+        const fd = new FormData();
+        for (const [part, url] of [['source', '/__source'], ['target', '/__target']]) fd.append(part, new Blob([await (await fetch(url)).arrayBuffer()]), `${part}.glb`);
+        fd.append('constraints', new Blob([JSON.stringify({ version: 1, method: 'project', output: { texture_size: 1024 } })]), 'c.json');
+        const r = await fetch('/v1/jobs', { method: 'POST', body: fd });
+        return (await r.json()).id;
+      });
+      if (!id) throw new Error('submission failed');
+      try {
+        await page.waitForSelector(`#job-rows tr[data-id="${id}"][data-status=succeeded]`, { timeout: 120000 });
+      } catch (e) {
+        const state = await page.evaluate(async (u) => ({ job: await (await fetch(u)).json(), log: window.rowLog.slice(-20), live: document.querySelector('#live').textContent, hash: location.hash }), `/v1/jobs/${id}`);
+        throw new Error(`${e.message}\n${JSON.stringify({ ...state, job: { status: state.job.status, progress: state.job.progress } })}\nrequests ${JSON.stringify(requests.slice(-20))}`);
+      }
+      const log = (await page.evaluate(() => window.rowLog)).filter((x) => x.id === id);
+      const running = log.filter((x) => x.status === 'processing');
+      const pcts = new Set(running.map((x) => x.pct));
+      if (running.length < 2 || pcts.size < 2) throw new Error(`the row did not move while running: ${JSON.stringify(log)}`);
+      const [t0, t1] = [running[0].t, running[running.length - 1].t];
+      const polled = requests.filter((r) => r.t >= t0 && r.t <= t1 && r.url.startsWith('/v1/jobs'));
+      if (polled.length) throw new Error(`requests while the job ran: ${JSON.stringify(polled)}; rows ${JSON.stringify(log)}`);
+      const streams = requests.filter((r) => r.url === '/v1/events').length;
+      if (streams !== 1) throw new Error(`${streams} event streams opened`);
+      // Newest first: the script's job is on top, and creation times never increase downwards.
+      await page.waitForFunction(() => document.querySelectorAll('#job-rows tr').length >= 3);
+      const rows = await page.$$eval('#job-rows tr', (rs) => rs.map((r) => [r.dataset.id, r.cells[3].title]));
+      if (rows[0][0] !== id) throw new Error(`top row is ${rows[0][0]}, not the newest job ${id}`);
+      for (let i = 1; i < rows.length; i++) {
+        if (Date.parse(rows[i][1]) > Date.parse(rows[i - 1][1])) throw new Error(`order: ${JSON.stringify(rows)}`);
+      }
+      return `${running.length} live updates (${[...pcts].join(', ')} %) in ${((t1 - t0) / 1000).toFixed(1)} s, 0 list requests; ${rows.length} rows newest first`;
+    } finally {
+      page.off('request', onRequest);
+    }
   });
 
   await step('job list: status filter, phone layout', async () => {

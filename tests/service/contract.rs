@@ -63,6 +63,7 @@ fn a_malformed_job_id_is_a_400_problem_naming_it() {
         "/v1/jobs/not-a-uuid/result".into(),
         "/v1/jobs/not-a-uuid/events".into(),
         "/v1/jobs/not-a-uuid/artifacts/report.json".into(),
+        "/v1/jobs/not-a-uuid/files/preview.png".into(),
         format!("/v1/jobs/{long}"),
     ] {
         let p = get(&format!("{}{path}", s.base)).problem(400);
@@ -80,6 +81,7 @@ fn a_malformed_job_id_is_a_400_problem_naming_it() {
         ("/v1/jobs/{id}/cancel", "post"),
         ("/v1/jobs/{id}/result", "get"),
         ("/v1/jobs/{id}/artifacts/{name}", "get"),
+        ("/v1/jobs/{id}/files/{name}", "get"),
         ("/v1/jobs/{id}/events", "get"),
     ] {
         assert!(

@@ -99,6 +99,34 @@ fn a_succeeded_job_serves_its_previews_with_etags() {
         assert_eq!(r.status, 200, "{name}");
         assert_turntable(&r.body, 4, 128, name);
     }
+    // The path, /files/, serves the same bytes with the same ETag, and 304s.
+    let files = format!("{}/v1/jobs/{id}/files/preview.png", s.base);
+    let f = get(&files);
+    assert_eq!(f.status, 200);
+    assert_eq!(f.header("content-type"), Some("image/png"));
+    assert_eq!(f.header("etag"), Some(etag.as_str()));
+    assert_eq!(f.body, r.body);
+    let again = request("GET", &files, &[("If-None-Match", &etag)], None);
+    assert_eq!(again.status, 304);
+    assert!(again.body.is_empty());
+    for name in ["source_preview.png", "target_preview.png"] {
+        let url = format!("{}/v1/jobs/{id}/files/{name}", s.base);
+        let r = get(&url);
+        assert_eq!(r.status, 200, "{name}");
+        assert_turntable(&r.body, 4, 128, name);
+        let tag = r.header("etag").expect("an ETag").to_string();
+        assert_eq!(
+            request("GET", &url, &[("If-None-Match", &tag)], None).status,
+            304
+        );
+        // A stale tag gets the file again.
+        assert_eq!(
+            request("GET", &url, &[("If-None-Match", "\"stale\"")], None).status,
+            200
+        );
+    }
+    let p = get(&format!("{}/v1/jobs/{id}/files/nothing.png", s.base)).problem(404);
+    assert_eq!(p["field"], "name", "{p}");
     // report.json carries the preview timings too.
     let report = get(&format!("{}/v1/jobs/{id}/artifacts/report.json", s.base)).json();
     assert!(

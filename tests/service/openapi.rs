@@ -65,6 +65,8 @@ fn served_spec_is_the_code_spec_and_is_valid_openapi() {
         ("/v1/jobs/{id}/result", "get"),
         ("/v1/jobs/{id}/artifacts/{name}", "get"),
         ("/v1/jobs/{id}/events", "get"),
+        ("/v1/jobs/{id}/files/{name}", "get"),
+        ("/v1/events", "get"),
         ("/healthz", "get"),
         ("/readyz", "get"),
         ("/metrics", "get"),

@@ -6,4 +6,5 @@ pub mod color;
 pub mod encode;
 pub mod pad;
 pub mod preview;
+pub mod preview_normals;
 pub mod sample;

@@ -15,7 +15,8 @@
 //! [`MaterialSampler::base_color`] at its (primitive, triangle, barycentric) — factor × texture ×
 //! COLOR_0, so a transferred texture shows exactly as sampled. With `shading`, the color is
 //! multiplied by `0.35 + 0.65 · max(0, n·l)` (Lambert plus ambient; two-sided flat face normals, a
-//! light above-left of the camera) so the shape reads. Alpha and alpha modes are ignored: the
+//! light above-left of the camera) so the shape reads; where the material has a normal map, `n`
+//! is the normal it encodes ([`super::preview_normals`]). Alpha and alpha modes are ignored: the
 //! surface is drawn opaque over the [`BACKGROUND`]. No antialiasing.
 //!
 //! Parallel over views and bands of 16 rows with rayon; each band is drawn by one task in a fixed
@@ -27,6 +28,7 @@ use serde::{Deserialize, Serialize};
 use crate::engine::asset::Asset;
 use crate::engine::math::{cross, dot, normal_of, normalize, sub};
 use crate::engine::texture::encode::encode_png_srgb;
+use crate::engine::texture::preview_normals::{Frame, NormalMaps};
 use crate::engine::texture::sample::MaterialSampler;
 
 /// Linear background color (light grey, sRGB 231).
@@ -283,13 +285,42 @@ fn draw(
     }
 }
 
+/// What a view is shaded with: the base colour, and (with shading) the normal maps and the
+/// tangent frame of each triangle that has one.
+struct Shading<'a> {
+    sampler: MaterialSampler<'a>,
+    lit: bool,
+    maps: NormalMaps,
+    frames: Vec<Option<Frame>>,
+}
+
+impl Shading<'_> {
+    /// The unit normal the light sees at a fragment, facing the camera (two-sided).
+    fn normal(&self, index: usize, t: &WorldTriangle, bary: [f32; 3], back: [f32; 3]) -> [f32; 3] {
+        let n = match self.frames.get(index).copied().flatten() {
+            Some(frame) => self.maps.normal(
+                self.sampler.asset(),
+                t.primitive as usize,
+                t.triangle as usize,
+                bary,
+                &frame,
+            ),
+            None => t.normal,
+        };
+        if dot(t.normal, back) < 0.0 {
+            n.map(|x| -x)
+        } else {
+            n
+        }
+    }
+}
+
 /// Renders one view into a `size × size` image.
 fn render_view(
     tris: &[WorldTriangle],
-    sampler: &MaterialSampler<'_>,
+    shading: &Shading<'_>,
     cam: &Camera,
     size: usize,
-    shading: bool,
 ) -> Vec<[f32; 4]> {
     let projected: Vec<[[f64; 3]; 3]> = tris.iter().map(|t| t.p.map(|p| cam.project(p))).collect();
     let bands = size.div_ceil(BAND);
@@ -326,13 +357,12 @@ fn render_view(
             for (px, f) in out.iter_mut().zip(&frags) {
                 let Some(f) = f else { continue };
                 let t = &tris[f.triangle as usize];
-                let c = sampler.base_color(t.primitive as usize, t.triangle as usize, f.bary);
-                let k = if shading {
-                    let n = if dot(t.normal, cam.back) < 0.0 {
-                        t.normal.map(|x| -x)
-                    } else {
-                        t.normal
-                    };
+                let c =
+                    shading
+                        .sampler
+                        .base_color(t.primitive as usize, t.triangle as usize, f.bary);
+                let k = if shading.lit {
+                    let n = shading.normal(f.triangle as usize, t, f.bary, cam.back);
                     AMBIENT + (1.0 - AMBIENT) * dot(n, cam.light).max(0.0)
                 } else {
                     1.0
@@ -352,6 +382,17 @@ pub fn render_turntable(
     asset: &Asset,
     params: &PreviewParams,
 ) -> Result<PreviewImage, PreviewError> {
+    render_turntable_noted(asset, params).map(|(image, _)| image)
+}
+
+/// As [`render_turntable`], with one note per normal map left out of the lighting.
+///
+/// # Errors
+/// As [`render_turntable`].
+pub fn render_turntable_noted(
+    asset: &Asset,
+    params: &PreviewParams,
+) -> Result<(PreviewImage, Vec<String>), PreviewError> {
     params.validate()?;
     let tris = world_triangles(asset);
     if tris.is_empty() {
@@ -378,7 +419,32 @@ pub fn render_turntable(
         ));
     }
     let radius = if radius > 0.0 { radius } else { 1.0 };
-    let sampler = MaterialSampler::new(asset);
+    let (maps, notes) = if params.shading {
+        NormalMaps::new(asset)
+    } else {
+        (NormalMaps::empty(), Vec::new())
+    };
+    let frames = if maps.any() {
+        tris.iter()
+            .map(|t| {
+                maps.frame(
+                    asset,
+                    t.primitive as usize,
+                    t.triangle as usize,
+                    &t.p,
+                    t.normal,
+                )
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let shading = Shading {
+        sampler: MaterialSampler::new(asset),
+        lit: params.shading,
+        maps,
+        frames,
+    };
     let size = params.size as usize;
     let views: Vec<Vec<[f32; 4]>> = (0..params.views)
         .into_par_iter()
@@ -391,7 +457,7 @@ pub fn render_turntable(
                 params.elevation_degrees.to_radians(),
                 params.size,
             );
-            render_view(&tris, &sampler, &cam, size, params.shading)
+            render_view(&tris, &shading, &cam, size)
         })
         .collect();
     let width = size * views.len();
@@ -402,9 +468,10 @@ pub fn render_turntable(
             pixels[start..start + size].copy_from_slice(row);
         }
     }
-    Ok(PreviewImage {
+    let image = PreviewImage {
         width: width as u32,
         height: params.size,
         pixels,
-    })
+    };
+    Ok((image, notes))
 }

@@ -27,7 +27,7 @@ use crate::service::model::{JobProgress, JobRecord, JobStatus};
 /// Interval of keep-alive comments.
 pub const KEEP_ALIVE: Duration = Duration::from_secs(15);
 
-fn doc(id: Uuid, status: JobStatus, p: &JobProgress, revision: u64) -> JobEventDoc {
+pub(crate) fn doc(id: Uuid, status: JobStatus, p: &JobProgress, revision: u64) -> JobEventDoc {
     JobEventDoc {
         id,
         status,

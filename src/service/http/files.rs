@@ -1,5 +1,7 @@
-//! Downloads: `GET /v1/jobs/{id}/result` (the output model) and
-//! `GET /v1/jobs/{id}/artifacts/{name}` (baked PNGs, `report.json`).
+//! Downloads: `GET /v1/jobs/{id}/result` (the output model),
+//! `GET /v1/jobs/{id}/artifacts/{name}` (baked PNGs, `report.json`, previews) and
+//! `GET /v1/jobs/{id}/files/{name}`, the same files under the name issue 16 gives the previews
+//! (`files/preview.png`, `files/source_preview.png`, `files/target_preview.png`).
 //!
 //! Each answer carries a strong ETag (the content's SHA-256, RFC 9110 §8.8.3), honours
 //! `If-None-Match` (304) and single byte ranges (RFC 9110 §14: `bytes=a-b`, `bytes=a-`,
@@ -225,7 +227,40 @@ pub async fn artifact(
     Path((_, name)): Path<(String, String)>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    let record = finished_job(&state, id).await?;
+    named(&state, id, name, &headers).await
+}
+
+/// Download one file of a finished job: its previews (`preview.png` of the result,
+/// `source_preview.png`, `target_preview.png`) or any other artifact.
+#[utoipa::path(get, path = "/v1/jobs/{id}/files/{name}", tag = "results",
+    params(("id" = Uuid, Path, description = "Job id"),
+           ("name" = String, Path, description = "File name, e.g. `preview.png`"),
+           ("If-None-Match" = Option<String>, Header, description = "An ETag from an earlier answer (304 when it still matches)")),
+    responses(
+        (status = 200, description = "The file (previews are `image/png` turntable strips); strong ETag (SHA-256)", body = Vec<u8>),
+        (status = 206, description = "The requested byte range", body = Vec<u8>),
+        (status = 304, description = "Unchanged"),
+        (status = 400, description = "Malformed job id (not a UUID)", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+        (status = 404, description = "Unknown job or file (a preview that did not render is absent; the report says why)", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+        (status = 409, description = "The job has not succeeded", body = super::doc::ProblemSchema, content_type = "application/problem+json"),
+    ))]
+pub async fn file(
+    State(state): State<AppState>,
+    JobId(id): JobId,
+    Path((_, name)): Path<(String, String)>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    named(&state, id, name, &headers).await
+}
+
+/// Serves the artifact `name` of the succeeded job `id`.
+async fn named(
+    state: &AppState,
+    id: Uuid,
+    name: String,
+    headers: &HeaderMap,
+) -> Result<Response, ApiError> {
+    let record = finished_job(state, id).await?;
     let artifact = record
         .artifacts
         .iter()
@@ -243,7 +278,7 @@ pub async fn artifact(
             )
             .field("name")
         })?;
-    serve_artifact(&state, artifact, name, &headers).await
+    serve_artifact(state, artifact, name, headers).await
 }
 
 #[cfg(test)]

@@ -291,11 +291,20 @@ async fn submit_multipart(
             ))
         }
         (CreateOutcome::Created, record) => {
-            state.runner.notify();
             tracing::info!(job = %id, method = %record.method, "job accepted");
             let jobs = state.jobs.clone();
             // The stored revision, so the ETag matches what GET answers.
-            let stored = blocking(move || jobs.get(id)).await?.unwrap_or(record);
+            let stored = blocking(move || jobs.get(id)).await;
+            let stored = match stored {
+                Ok(s) => s.unwrap_or(record),
+                Err(e) => {
+                    state.runner.notify();
+                    return Err(e);
+                }
+            };
+            // Announced before the runner is woken, so event streams see `enqueued` first.
+            state.runner.announce(&stored);
+            state.runner.notify();
             Ok(job_response(
                 StatusCode::ACCEPTED,
                 &stored,
@@ -427,6 +436,7 @@ pub async fn cancel_job(
         state.runner.cancel(id);
         return Ok(job_response(StatusCode::ACCEPTED, &record, &[]));
     }
+    state.runner.announce(&record);
     state.runner.notify();
     Ok(job_response(StatusCode::OK, &record, &[]))
 }

@@ -38,6 +38,7 @@ pub mod doc;
 pub mod events;
 pub mod files;
 pub mod ingest;
+pub mod job_stream;
 pub mod jobs;
 pub mod linger;
 pub mod metrics;
@@ -132,6 +133,8 @@ pub fn router(state: AppState) -> Router {
         .route("/v1/jobs/{id}/cancel", post(jobs::cancel_job))
         .route("/v1/jobs/{id}/result", get(files::result))
         .route("/v1/jobs/{id}/artifacts/{name}", get(files::artifact))
+        .route("/v1/jobs/{id}/files/{name}", get(files::file))
+        .route("/v1/events", get(job_stream::job_stream))
         .route("/v1/jobs/{id}/events", get(events::events))
         .route("/v1/openapi.json", get(openapi::openapi_json))
         .route("/v1/methods", get(dashboard::methods))

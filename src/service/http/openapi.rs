@@ -6,7 +6,7 @@ use axum::Json;
 use utoipa::openapi::security::{HttpAuthScheme, HttpBuilder, SecurityScheme};
 use utoipa::{Modify, OpenApi};
 
-use super::{dashboard, doc, events, files, jobs, metrics, ops};
+use super::{dashboard, doc, events, files, job_stream, jobs, metrics, ops};
 
 struct BearerAuth;
 
@@ -30,7 +30,7 @@ impl Modify for BearerAuth {
     ),
     paths(
         jobs::submit, jobs::list_jobs, jobs::get_job, jobs::cancel_job, jobs::delete_job,
-        files::result, files::artifact, events::events, dashboard::api::methods, dashboard::api::constraints,
+        files::result, files::artifact, files::file, events::events, job_stream::job_stream, dashboard::api::methods, dashboard::api::constraints,
         ops::healthz, ops::readyz, metrics::metrics, openapi_json,
     ),
     components(schemas(

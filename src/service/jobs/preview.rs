@@ -13,12 +13,12 @@
 //! - Views: [`RESULT_VIEWS`] azimuths of [`RESULT_SIZE`] px for the result and [`INPUT_VIEWS`] of
 //!   [`INPUT_SIZE`] px for the inputs, base colour with Lambert shading. Chosen for a dashboard
 //!   tile (a 1024 × 256 strip shows front, side, back, side); not from a paper.
-//! - Not done: the renderer draws the base colour only, so a normal map a method outputs is not
-//!   lit in the preview (the 3D view of the dashboard shows it).
+//! - A normal map the model carries is lit ([`crate::engine::texture::preview_normals`]); one
+//!   left out of the lighting (too large, or not decodable) becomes a warning.
 
 use crate::engine::asset::{load, BlobSet, IngestLimits};
 use crate::engine::control::{Control, Progress};
-use crate::engine::texture::preview::{render_turntable, PreviewParams};
+use crate::engine::texture::preview::{render_turntable_noted, PreviewParams};
 use crate::service::model::JobProgress;
 
 /// Views of the result turntable.
@@ -61,20 +61,23 @@ pub struct Previews {
     pub warnings: Vec<String>,
 }
 
-/// Renders one model to a PNG.
-fn render_one(input: &PreviewInput<'_>, limits: &IngestLimits) -> Result<Vec<u8>, String> {
+/// Renders one model to a PNG; returns it and the renderer's notes.
+fn render_one(
+    input: &PreviewInput<'_>,
+    limits: &IngestLimits,
+) -> Result<(Vec<u8>, Vec<String>), String> {
     let asset = load(input.main, input.blobs, limits).map_err(|e| e.to_string())?;
     let params = PreviewParams {
         views: input.views,
         size: input.size,
         ..PreviewParams::default()
     };
-    let image = render_turntable(&asset, &params).map_err(|e| e.to_string())?;
+    let (image, notes) = render_turntable_noted(&asset, &params).map_err(|e| e.to_string())?;
     let png = image.to_png();
     if png.is_empty() {
         return Err("PNG encoding failed".into());
     }
-    Ok(png)
+    Ok((png, notes))
 }
 
 /// Renders every input in order, one stage each, then finishes `control`. Returns `None` when
@@ -93,7 +96,14 @@ pub fn render_previews(
         // The preview control is never cancelled itself: the job's is checked above.
         let _stage = control.stage(input.stage, 1).ok()?;
         match render_one(input, limits) {
-            Ok(png) => out.files.push((input.artifact.to_string(), png)),
+            Ok((png, notes)) => {
+                out.files.push((input.artifact.to_string(), png));
+                out.warnings.extend(
+                    notes
+                        .into_iter()
+                        .map(|n| format!("preview: {}: {n}", input.artifact)),
+                );
+            }
             Err(e) => out
                 .warnings
                 .push(format!("preview: {} not rendered: {e}", input.artifact)),

@@ -397,6 +397,17 @@ impl Runner {
         }
     }
 
+    /// Broadcasts a change made outside the runner (a submission, the cancellation of a waiting
+    /// job) to the event streams.
+    pub fn announce(&self, record: &JobRecord) {
+        self.emit(
+            record.id,
+            record.status,
+            record.progress.clone(),
+            record.revision,
+        );
+    }
+
     fn emit(&self, id: Uuid, status: JobStatus, progress: JobProgress, revision: u64) {
         // No subscriber is not an error.
         let _ = self.events.send(JobEvent {

@@ -4,7 +4,8 @@
 
 const TOKEN_KEY = 'retex.token';
 const PAGE_SIZE = 20;
-const LIST_POLL_MS = 1500;
+const LIST_POLL_MS = 1500; // only while the list's event stream is down
+const STREAM_RETRY_MS = 10000;
 const $ = (id) => document.getElementById(id);
 const el = (tag, attrs = {}, ...kids) => {
   const e = document.createElement(tag);
@@ -109,8 +110,40 @@ function methods() {
   return methodsPromise;
 }
 
+// ---------- server-sent events through fetch ----------
+// EventSource cannot send the Authorization header, and the token must never be in a URL, so
+// streams are read with fetch() and parsed here (WHATWG HTML §9.2: blocks split by a blank line,
+// `event:` names, `data:` lines joined, comments ignored). onEvent(name, data) returning true
+// stops reading.
+async function readEvents(resp, onEvent) {
+  const reader = resp.body.pipeThrough(new TextDecoderStream()).getReader();
+  let buf = '';
+  for (;;) {
+    const { value, done } = await reader.read();
+    if (done) return;
+    buf += value.replace(/\r\n?/g, '\n');
+    let cut;
+    while ((cut = buf.indexOf('\n\n')) >= 0) {
+      const block = buf.slice(0, cut);
+      buf = buf.slice(cut + 2);
+      let name = 'message'; const data = [];
+      for (const line of block.split('\n')) {
+        if (line.startsWith('event:')) name = line.slice(6).trim();
+        else if (line.startsWith('data:')) data.push(line.slice(5).replace(/^ /, ''));
+      }
+      if (!data.length) continue;
+      if (await onEvent(name, JSON.parse(data.join('\n')))) { reader.cancel().catch(() => {}); return; }
+    }
+  }
+}
+
 // ---------- jobs list ----------
-const list = { cursors: [null], page: 0, timer: null, next: null };
+// Live through one list-level stream (GET /v1/events): rows update in place from `job` events;
+// a job not on the page (a new submission) or one that ended reloads the page once (debounced);
+// `resync` reloads it. Polling every LIST_POLL_MS only while the stream is down (retried every
+// STREAM_RETRY_MS). Ages and durations tick locally.
+const list = { cursors: [null], page: 0, timer: null, next: null, jobs: new Map(),
+  stream: null, retry: null, reload: null, clock: null, live: false, unknown: new Set() };
 
 async function loadJobs() {
   const q = new URLSearchParams({ limit: PAGE_SIZE });
@@ -126,31 +159,116 @@ async function loadJobs() {
   $('page-newer').disabled = list.page === 0;
   $('page-older').disabled = !page.next;
   $('page-number').textContent = `page ${list.page + 1}`;
-  $('live').textContent = `updated ${new Date().toLocaleTimeString()}`;
+  $('live').textContent = list.live ? 'live' : `updated ${new Date().toLocaleTimeString()}`;
 }
 
-function renderJobs(jobs) {
-  const rows = $('job-rows');
-  rows.replaceChildren(...jobs.map((j) => el('tr', { 'data-id': j.id, 'data-status': j.status },
+function jobRow(j) {
+  return el('tr', { 'data-id': j.id, 'data-status': j.status },
     el('td', {}, el('span', { class: `badge ${j.status}`, text: j.status })),
     el('td', { text: j.method }),
     el('td', { class: 'c-progress' }, progressBar(j.progress),
       el('span', { class: 'stage', text: j.progress.stage || (j.status === 'enqueued' ? 'waiting' : '') })),
-    el('td', { text: span(secondsSince(j.created_at)), title: j.created_at }),
-    el('td', { text: duration(j) }),
-    el('td', {}, el('a', { href: `#/jobs/${j.id}`, text: j.id.slice(0, 8) })))));
+    el('td', { class: 'c-age', text: span(secondsSince(j.created_at)), title: j.created_at }),
+    el('td', { class: 'c-duration', text: duration(j) }),
+    el('td', {}, el('a', { href: `#/jobs/${j.id}`, text: j.id.slice(0, 8) })));
+}
+
+function renderJobs(jobs) {
+  list.jobs = new Map(jobs.map((j) => [j.id, j]));
+  $('job-rows').replaceChildren(...jobs.map(jobRow));
   $('jobs-empty').hidden = jobs.length > 0;
 }
 
-function startList() {
-  stopList();
+function tickClock() {
+  for (const tr of $('job-rows').children) {
+    const j = list.jobs.get(tr.dataset.id);
+    if (!j) continue;
+    tr.querySelector('.c-age').textContent = span(secondsSince(j.created_at));
+    tr.querySelector('.c-duration').textContent = duration(j);
+  }
+}
+
+function reloadSoon() {
+  clearTimeout(list.reload);
+  list.reload = setTimeout(() => {
+    loadJobs().then(() => banner('')).catch((e) => { if (e.status !== 401) banner(`Jobs: ${e.message}`); });
+  }, 200);
+}
+
+// One `job` event (a JobEventDoc): update its row, or reload the page when it is not on it.
+function onJobEvent(ev) {
+  const j = list.jobs.get(ev.id);
+  if (!j) {
+    // A job not on this page: new ones show on the first (newest first). Reload once per job,
+    // not for every event of a job the page's filter or position keeps off it.
+    if (list.page === 0 && !list.unknown.has(ev.id)) { list.unknown.add(ev.id); reloadSoon(); }
+    return;
+  }
+  if (j.revision !== undefined && ev.revision < j.revision && !terminal(ev.status)) return;
+  const was = j.status;
+  Object.assign(j, { status: ev.status, progress: ev.progress, revision: ev.revision });
+  if (ev.status === 'processing' && !j.started_at) j.started_at = new Date().toISOString();
+  const tr = $('job-rows').querySelector(`tr[data-id="${ev.id}"]`);
+  if (tr) tr.replaceWith(jobRow(j));
+  // The end brings a finish time (and may move the job out of a status filter).
+  if (terminal(ev.status) && !terminal(was)) reloadSoon();
+}
+
+async function openListStream() {
+  const ctrl = new AbortController();
+  list.stream = ctrl;
+  try {
+    const resp = await api('/v1/events', { headers: { Accept: 'text/event-stream' }, signal: ctrl.signal });
+    await readEvents(resp, async (name, data) => {
+      if (list.stream !== ctrl) return true;
+      if (name === 'ready') {
+        list.live = true;
+        clearTimeout(list.timer); list.timer = null; // polling off
+        await loadJobs().catch((e) => { if (e.status !== 401) banner(`Jobs: ${e.message}`); });
+      } else if (name === 'job') onJobEvent(data);
+      else if (name === 'resync') reloadSoon();
+      return false;
+    });
+  } catch (e) {
+    if (ctrl.signal.aborted) return;
+    if (e.status === 401) { list.stream = null; return; }
+  }
+  if (list.stream !== ctrl || currentView !== 'jobs') return;
+  // The stream failed or ended: poll, and try the stream again later.
+  list.live = false;
+  list.stream = null;
+  startPolling();
+  list.retry = setTimeout(() => { if (currentView === 'jobs') openListStream(); }, STREAM_RETRY_MS);
+}
+
+function startPolling() {
+  clearTimeout(list.timer);
   const tick = async () => {
     try { await loadJobs(); banner(''); } catch (e) { if (e.status !== 401) banner(`Jobs: ${e.message}`); }
-    if (currentView === 'jobs') list.timer = setTimeout(tick, LIST_POLL_MS);
+    if (currentView === 'jobs' && !list.live) list.timer = setTimeout(tick, LIST_POLL_MS);
   };
   tick();
 }
-function stopList() { clearTimeout(list.timer); list.timer = null; }
+
+function startList() {
+  list.unknown.clear();
+  if (list.stream && list.live) {
+    // The stream is up: a filter or page change needs just the page.
+    loadJobs().catch((e) => { if (e.status !== 401) banner(`Jobs: ${e.message}`); });
+    return;
+  }
+  stopList();
+  list.clock = setInterval(tickClock, 1000);
+  openListStream();
+}
+function stopList() {
+  list.stream?.abort();
+  list.stream = null;
+  list.live = false;
+  for (const t of [list.timer, list.retry, list.reload]) clearTimeout(t);
+  clearInterval(list.clock);
+  list.timer = list.retry = list.reload = list.clock = null;
+}
 
 function initList() {
   const refilter = () => { list.cursors = [null]; list.page = 0; startList(); };
@@ -512,27 +630,14 @@ async function follow(id) {
   job.stream = ctrl;
   try {
     const resp = await api(`/v1/jobs/${id}/events`, { headers: { Accept: 'text/event-stream' }, signal: ctrl.signal });
-    const reader = resp.body.pipeThrough(new TextDecoderStream()).getReader();
-    let buf = '';
-    for (;;) {
-      const { value, done } = await reader.read();
-      if (done) break;
-      buf += value;
-      let cut;
-      while ((cut = buf.indexOf('\n\n')) >= 0) {
-        const block = buf.slice(0, cut);
-        buf = buf.slice(cut + 2);
-        let name = 'message'; let data = '';
-        for (const line of block.split('\n')) {
-          if (line.startsWith('event:')) name = line.slice(6).trim();
-          else if (line.startsWith('data:')) data += line.slice(5).trim();
-        }
-        if (!data || job.id !== id) continue;
-        const ev = JSON.parse(data);
-        renderProgress(ev.status, ev.progress);
-        if (name === 'done') { ctrl.abort(); await refreshJob(id); return; }
-      }
-    }
+    let ended = false;
+    await readEvents(resp, (name, ev) => {
+      if (job.id !== id) return true;
+      renderProgress(ev.status, ev.progress);
+      ended = name === 'done';
+      return ended;
+    });
+    if (ended) ctrl.abort();
     if (job.id === id) await refreshJob(id);
   } catch (e) {
     if (ctrl.signal.aborted || job.id !== id) return;
@@ -559,6 +664,9 @@ function leaveJob() {
   job.stream?.abort();
   clearTimeout(job.poll);
   job.id = null;
+  // Nothing of this job may show on the next one's page before it loads.
+  $('job-status').textContent = '';
+  $('job-status').className = 'badge';
   job.shown = false;
   release();
   const v = $('viewer');
