@@ -9,7 +9,9 @@ use retex::engine::geometry::expmap::RadiusUnit;
 use retex::engine::geometry::fans::{FanParams, FanSampler, FanShape, FieldRef};
 use retex::engine::methods::meshmatch::em::MAX_CHART_VERTICES;
 use retex::engine::methods::meshmatch::levels::MeshLevels;
-use retex::engine::methods::meshmatch::matcher::{bfs_order, components, EStep, Nnf, PatchSpace};
+use retex::engine::methods::meshmatch::matcher::{
+    bfs_order, components, usage_penalty, EStep, Nnf, PatchSpace,
+};
 use retex::engine::methods::meshmatch::vote::{vote, SourcePatches, VoteStencil};
 
 use crate::meshmatch_defects::grid;
@@ -50,6 +52,7 @@ impl ShapeOnly {
                 shape_dim: 2,
                 source_allowed: None,
                 exclude: None,
+                source_penalty: &[],
             },
             target_adjacency: self.levels.rings(0),
             source_adjacency: self.levels.rings(0),
@@ -233,4 +236,30 @@ fn voting_a_known_field_gives_the_known_colours() {
         assert!(count > 300);
         assert!(worst <= 0.01, "shift {shift}: worst error {worst:.4}");
     }
+}
+
+/// The completeness cost: proportional to each source vertex's uses over the even cover, fixed
+/// targets not counted, forbidden sources not in the cover, nothing when the weight is 0.
+#[test]
+fn usage_penalty_counts_uses_against_an_even_cover() {
+    // 6 targets onto 3 sources: 4 on source 0, 2 on source 1, none on 2 (even cover: 2 each).
+    let nnf = Nnf {
+        source: vec![0, 0, 0, 0, 1, 1],
+        rotation: vec![0; 6],
+        distance: vec![0.0; 6],
+    };
+    let p = usage_penalty(&nnf, 3, None, None, 0.5, 10.0);
+    assert_eq!(p, vec![10.0, 5.0, 0.0]);
+    // Source 2 may not be used: the even cover is 3 each.
+    let allowed = [true, true, false];
+    let p = usage_penalty(&nnf, 3, Some(&allowed), None, 0.5, 10.0);
+    assert!((p[0] - 20.0 / 3.0).abs() < 1e-5 && (p[1] - 10.0 / 3.0).abs() < 1e-5);
+    // Two fixed targets on source 0 are not counted: 4 free targets, 2 on each used source.
+    let fixed = [true, true, false, false, false, false];
+    let p = usage_penalty(&nnf, 3, Some(&allowed), Some(&fixed), 0.5, 10.0);
+    assert!(
+        (p[0] - 5.0).abs() < 1e-5 && (p[1] - 5.0).abs() < 1e-5,
+        "{p:?}"
+    );
+    assert!(usage_penalty(&nnf, 3, None, None, 0.0, 10.0).is_empty());
 }

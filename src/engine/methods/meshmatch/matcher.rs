@@ -80,6 +80,9 @@ pub struct PatchSpace<'a> {
     pub source_allowed: Option<&'a [bool]>,
     /// Candidates closer than a radius to the target vertex are refused (self-matching a mesh).
     pub exclude: Option<Exclusion<'a>>,
+    /// Completeness: a cost added to every match of source vertex `s` (its over-use by the
+    /// current field, see [`usage_penalty`]); empty: none.
+    pub source_penalty: &'a [f32],
 }
 
 /// Refuses matches between nearby points (the self-match of a source against itself).
@@ -132,7 +135,8 @@ impl PatchSpace<'_> {
                 return None;
             }
         }
-        let shape = self.shape_distance(t, s);
+        let penalty = self.source_penalty.get(s).copied().unwrap_or(0.0);
+        let shape = self.shape_distance(t, s) + penalty;
         if shape >= bound {
             return None;
         }
@@ -161,6 +165,42 @@ impl PatchSpace<'_> {
         }
         best
     }
+}
+
+/// The completeness cost of every source vertex (see the `em` module docs): `weight × scale ×
+/// uses(s) / expected`, where `uses(s)` counts the free target vertices matched to `s` in `nnf`,
+/// `expected` is their number over the usable source vertices' (the use of each under a field
+/// that covers the source evenly) and `scale` the cost unit (the fan's dimension: a patch in
+/// colour units of the source's standard deviation). Empty when `weight` is 0.
+pub fn usage_penalty(
+    nnf: &Nnf,
+    source_count: usize,
+    allowed: Option<&[bool]>,
+    fixed: Option<&[bool]>,
+    weight: f32,
+    scale: f32,
+) -> Vec<f32> {
+    if weight <= 0.0 || source_count == 0 {
+        return Vec::new();
+    }
+    let mut uses = vec![0u32; source_count];
+    let mut free = 0usize;
+    for (t, &s) in nnf.source.iter().enumerate() {
+        if fixed.is_some_and(|f| f[t]) {
+            continue;
+        }
+        free += 1;
+        if let Some(u) = uses.get_mut(s as usize) {
+            *u += 1;
+        }
+    }
+    let usable = allowed.map_or(source_count, |a| a.iter().filter(|&&x| x).count());
+    let expected = free as f32 / usable.max(1) as f32;
+    if expected <= 0.0 {
+        return Vec::new();
+    }
+    let unit = weight * scale / expected;
+    uses.iter().map(|&u| unit * u as f32).collect()
 }
 
 /// Everything an E-step needs besides the field.
@@ -456,6 +496,7 @@ mod tests {
                     shape_dim: 1,
                     source_allowed: None,
                     exclude: None,
+                    source_penalty: &[],
                 },
                 target_adjacency: (&rings.0, &rings.1),
                 source_adjacency: (&source_rings.0, &source_rings.1),

@@ -241,6 +241,11 @@ pub struct MeshMatchParams {
     /// Shape weight on the finest level (geometric in between). Default: `shape_weight`.
     #[schemars(range(min = 0, max = 100))]
     pub finest_shape_weight: Option<f32>,
+    /// Completeness weight: every match of a source vertex costs `completeness_weight × (fan
+    /// dimension) × uses / expected uses` on top of its dissimilarity, so the field spreads over
+    /// the source instead of piling onto its most common patches (see `em`). 0 turns it off.
+    #[schemars(range(min = 0, max = 100))]
+    pub completeness_weight: f32,
     /// Vote Gaussian σ as a fraction of the fan radius. Default 0.5.
     #[schemars(range(max = 10), extend("exclusiveMinimum" = 0))]
     pub vote_sigma: f32,
@@ -284,6 +289,7 @@ impl Default for MeshMatchParams {
             feature_vertices: 8_000,
             shape_weight: 2.0,
             finest_shape_weight: None,
+            completeness_weight: 0.0,
             vote_sigma: 0.5,
             nearest_neighbor_final: true,
             randomized_rotations: false,
