@@ -91,7 +91,7 @@ fn quad_glb(png: Option<&[u8]>) -> Vec<u8> {
         json["materials"][0]["normalTexture"] = serde_json::json!({"index": 0});
     }
     let mut text = serde_json::to_vec(&json).unwrap();
-    while text.len() % 4 != 0 {
+    while !text.len().is_multiple_of(4) {
         text.push(b' ');
     }
     let mut glb = Vec::new();
