@@ -357,6 +357,49 @@ async function main() {
     if (gone !== 404) throw new Error(`deleted job answers ${gone}`);
   });
 
+  await step('job list: pagination, older and newer pages', async () => {
+    // More jobs than one page (PAGE_SIZE 20), submitted by a script and canceled while waiting
+    // (a canceled job is listed like any other and costs the worker nothing).
+    const made = await page.evaluate(async () => {
+      const files = [];
+      for (const url of ['/__source', '/__target']) files.push(await (await fetch(url)).arrayBuffer());
+      const ids = [];
+      for (let i = 0; i < 22; i++) {
+        const fd = new FormData();
+        fd.append('source', new Blob([files[0]]), 'source.glb');
+        fd.append('target', new Blob([files[1]]), 'target.glb');
+        fd.append('constraints', new Blob([JSON.stringify({ version: 1, method: 'project', output: { texture_size: 32 } })]), 'c.json');
+        const r = await fetch('/v1/jobs', { method: 'POST', body: fd });
+        const id = (await r.json()).id;
+        await fetch(`/v1/jobs/${id}/cancel`, { method: 'POST' });
+        ids.push(id);
+      }
+      return ids;
+    });
+    if (made.length !== 22 || made.some((x) => !x)) throw new Error(`submissions: ${JSON.stringify(made)}`);
+    await page.goto(`${server.base}/#/`);
+    await page.reload();
+    await page.waitForSelector('#job-rows tr');
+    const rows = () => page.$$eval('#job-rows tr', (trs) => trs.map((tr) => tr.dataset.id));
+    const first = await rows();
+    if (first.length !== 20) throw new Error(`page 1 shows ${first.length} rows`);
+    if (first[0] !== made[21]) throw new Error(`page 1 does not start with the newest job`);
+    if (await page.isDisabled('#page-older')) throw new Error('Older is disabled with more jobs than a page');
+    if (!(await page.isDisabled('#page-newer'))) throw new Error('Newer is enabled on page 1');
+    await page.click('#page-older');
+    await page.waitForFunction((id) => !document.querySelector(`#job-rows tr[data-id="${id}"]`), first[0]);
+    const second = await rows();
+    if (second.length === 0 || second.some((id) => first.includes(id))) throw new Error(`page 2 ${second.length} rows, overlap with page 1`);
+    // Every job submitted is on one of the two pages (the earlier steps' jobs fill the rest).
+    const missing = made.filter((id) => !first.includes(id) && !second.includes(id));
+    if (missing.length) throw new Error(`${missing.length} submitted jobs on neither page`);
+    const label = await page.textContent('#page-number');
+    if (!/2/.test(label)) throw new Error(`page label ${label}`);
+    await page.click('#page-newer');
+    await page.waitForFunction((id) => !!document.querySelector(`#job-rows tr[data-id="${id}"]`), first[0]);
+    return `page 1: 20 rows from the newest, page 2: ${second.length} rows, no overlap`;
+  });
+
   await context.close();
   await stopServer(server);
 
