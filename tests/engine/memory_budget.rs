@@ -561,3 +561,43 @@ fn an_over_large_correlation_sample_count_is_refused_at_check_time() {
     };
     assert!(checked_method(&registry, &constraints, &roomy).is_ok());
 }
+
+#[test]
+fn the_generated_atlas_counts_in_every_colour_methods_working_set() {
+    // A million input triangles: with output.uv = auto each texture-writing method counts the
+    // atlas it may have to build (1,500 B per triangle); with keep or vertex_colors it does not.
+    let registry = Registry::builtin();
+    let triangles = 1_000_000;
+    let atlas = retex::engine::uv::working_set_bytes(triangles);
+    assert_eq!(atlas, 1_500_000_000);
+    for method in ["project", "meshmatch", "correlation"] {
+        let estimate = |uv: &str| {
+            let c = Constraints::from_json(
+                format!(r#"{{"version": 1, "method": "{method}", "output": {{"uv": "{uv}"}}}}"#)
+                    .as_bytes(),
+            )
+            .unwrap();
+            let m = registry.get(c.method).unwrap();
+            m.working_set(&c, triangles).unwrap()
+        };
+        let auto = estimate("auto");
+        for other in ["keep", "vertex_colors"] {
+            let without = estimate(other);
+            assert_eq!(auto.bytes - without.bytes, atlas, "{method} {other}");
+            assert_ne!(without.field, "output.uv", "{method} {other}");
+        }
+    }
+    // Where the atlas is the largest part, the estimate names `output.uv` (the setting that
+    // removes it): project and correlation, whose own per-triangle costs are smaller.
+    for method in ["project", "correlation"] {
+        let c =
+            Constraints::from_json(format!(r#"{{"version": 1, "method": "{method}"}}"#).as_bytes())
+                .unwrap();
+        let ws = registry
+            .get(c.method)
+            .unwrap()
+            .working_set(&c, triangles)
+            .unwrap();
+        assert_eq!(ws.field, "output.uv", "{method}");
+    }
+}

@@ -259,3 +259,16 @@ pub fn texture_working_set(constraints: &Constraints) -> WorkingSet {
         field: "output.texture_size",
     }
 }
+
+/// The working set of a UV atlas generated for the output (`output.uv = "auto"`, the default):
+/// [`crate::engine::uv::working_set_bytes`] for every input triangle, since which inputs lack
+/// UVs is not known before they are read; 0 for `keep` and `vertex_colors`. Every method that
+/// writes a colour texture through the shared writer (project, meshmatch, correlation) adds it.
+pub fn atlas_working_set(constraints: &Constraints, input_triangles: u64) -> u64 {
+    match constraints.output.uv {
+        crate::engine::asset::constraints::UvMode::Auto => {
+            crate::engine::uv::working_set_bytes(input_triangles)
+        }
+        _ => 0,
+    }
+}

@@ -31,8 +31,8 @@ mod method;
 mod schema;
 
 pub use method::{
-    texture_working_set, InputSpec, InputUse, Method, MethodError, MethodInput, MethodOutput,
-    PatternImage, ResultFile, WorkingSet, TEXEL_BYTES,
+    atlas_working_set, texture_working_set, InputSpec, InputUse, Method, MethodError, MethodInput,
+    MethodOutput, PatternImage, ResultFile, WorkingSet, TEXEL_BYTES,
 };
 pub use schema::{constraints_schema, constraints_schema_for, constraints_schema_json};
 pub use shared_params::SharedParams;

@@ -100,8 +100,8 @@ impl Method for Correlation {
     }
 
     /// Both models' samples and pyramids ([`SAMPLE_BYTES`] per requested sample, counted twice),
-    /// the per-vertex features ([`INPUT_TRIANGLE_BYTES`]) and one baked texture (three with the
-    /// debug files).
+    /// the per-vertex features ([`INPUT_TRIANGLE_BYTES`]), one baked texture (three with the
+    /// debug files) and the generated atlas ([`crate::engine::methods::atlas_working_set`]).
     fn working_set(
         &self,
         constraints: &Constraints,
@@ -116,7 +116,10 @@ impl Method for Correlation {
             };
         let samples = (params.samples as u64).saturating_mul(per_sample);
         let inputs = input_triangles.saturating_mul(INPUT_TRIANGLE_BYTES);
-        let field = if inputs > samples.max(texture.bytes) {
+        let atlas = crate::engine::methods::atlas_working_set(constraints, input_triangles);
+        let field = if atlas > inputs.max(samples).max(texture.bytes) {
+            "output.uv"
+        } else if inputs > samples.max(texture.bytes) {
             "inputs"
         } else if samples >= texture.bytes {
             "params.samples"
@@ -128,6 +131,7 @@ impl Method for Correlation {
         Some(crate::engine::methods::WorkingSet {
             bytes: samples
                 .saturating_add(inputs)
+                .saturating_add(atlas)
                 .saturating_add(texture.bytes.saturating_mul(bakes)),
             field,
         })

@@ -77,7 +77,10 @@ impl Method for MeshMatch {
         let texture = super::texture_working_set(constraints);
         let synthesis = params.working_set_bytes();
         let inputs = input_triangles.saturating_mul(INPUT_TRIANGLE_BYTES);
-        let field = if inputs > synthesis.max(texture.bytes) {
+        let atlas = super::atlas_working_set(constraints, input_triangles);
+        let field = if atlas > inputs.max(synthesis).max(texture.bytes) {
+            "output.uv"
+        } else if inputs > synthesis.max(texture.bytes) {
             "inputs"
         } else if synthesis >= texture.bytes {
             "params.samples"
@@ -87,7 +90,8 @@ impl Method for MeshMatch {
         Some(WorkingSet {
             bytes: synthesis
                 .saturating_add(texture.bytes)
-                .saturating_add(inputs),
+                .saturating_add(inputs)
+                .saturating_add(atlas),
             field,
         })
     }

@@ -202,14 +202,8 @@ impl Method for Project {
         input_triangles: u64,
     ) -> Option<super::WorkingSet> {
         let texture = super::texture_working_set(constraints);
-        // A UV-less target gets an atlas (output.uv = auto): count it for every input triangle,
-        // since which inputs lack UVs is not known before they are read.
-        let atlas = match constraints.output.uv {
-            crate::engine::asset::constraints::UvMode::Auto => {
-                crate::engine::uv::working_set_bytes(input_triangles)
-            }
-            _ => 0,
-        };
+        // A UV-less target gets an atlas (output.uv = auto).
+        let atlas = super::atlas_working_set(constraints, input_triangles);
         Some(super::WorkingSet {
             bytes: texture.bytes.saturating_add(atlas),
             field: if atlas > texture.bytes {
