@@ -10,10 +10,10 @@ use std::path::Path;
 use std::time::Instant;
 
 use retex::engine::asset::constraints::Constraints;
+use retex::engine::asset::export::mesh_glb;
 use retex::engine::asset::BlobSet;
 use retex::engine::control::Control;
 use retex::engine::mesh::primitives::icosphere;
-use retex::engine::mesh::Surface;
 use retex::engine::pipeline::{transfer, ModelInput, TransferInput};
 
 /// The textured source of every transfer.
@@ -44,57 +44,6 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
-}
-
-/// A GLB of a surface: positions and u32 indices, no UVs, no normals, no material.
-fn surface_glb(s: &Surface) -> Vec<u8> {
-    let mut bin = Vec::new();
-    let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
-    for p in &s.positions {
-        for k in 0..3 {
-            lo[k] = lo[k].min(p[k]);
-            hi[k] = hi[k].max(p[k]);
-            bin.extend_from_slice(&p[k].to_le_bytes());
-        }
-    }
-    let pos_len = bin.len();
-    for f in &s.faces {
-        for v in f {
-            bin.extend_from_slice(&v.to_le_bytes());
-        }
-    }
-    let json = serde_json::json!({
-        "asset": {"version": "2.0"},
-        "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
-        "buffers": [{"byteLength": bin.len()}],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": pos_len, "target": 34962},
-            {"buffer": 0, "byteOffset": pos_len, "byteLength": bin.len() - pos_len, "target": 34963}
-        ],
-        "accessors": [
-            {"bufferView": 0, "componentType": 5126, "count": s.positions.len(), "type": "VEC3", "min": lo, "max": hi},
-            {"bufferView": 1, "componentType": 5125, "count": s.faces.len() * 3, "type": "SCALAR"}
-        ]
-    });
-    let mut text = json.to_string().into_bytes();
-    while !text.len().is_multiple_of(4) {
-        text.push(b' ');
-    }
-    let total = 12 + 8 + text.len() + 8 + bin.len();
-    let mut out = Vec::with_capacity(total);
-    out.extend_from_slice(b"glTF");
-    out.extend_from_slice(&2u32.to_le_bytes());
-    out.extend_from_slice(&(total as u32).to_le_bytes());
-    out.extend_from_slice(&(text.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"JSON");
-    out.extend_from_slice(&text);
-    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"BIN\0");
-    out.extend_from_slice(&bin);
-    out
 }
 
 /// Medians of one target over `runs` transfers.
@@ -173,7 +122,7 @@ pub fn run(assets: &Path, runs: usize) -> Result<(), String> {
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     for (frequency, peers) in [32usize, 63, 127].into_iter().zip(PEERS) {
         let sphere = icosphere(1.0, frequency);
-        let glb = surface_glb(&sphere);
+        let glb = mesh_glb(&sphere.positions, &sphere.faces).map_err(|e| e.to_string())?;
         let mut blobs = BlobSet::new();
         blobs.insert("sphere.glb", glb);
         let target = ("sphere.glb".to_string(), blobs);

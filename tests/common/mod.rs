@@ -139,28 +139,11 @@ pub fn psnr_masked(a: &[[u8; 4]], b: &[[u8; 4]], mask: &[bool]) -> f64 {
     10.0 * (255.0f64 * 255.0 / mse).log10()
 }
 
-/// Builds a GLB from a JSON document and a binary chunk (both padded to 4 bytes).
+/// Builds a GLB from a JSON document and a binary chunk (both padded to 4 bytes; no BIN chunk
+/// when `bin` is empty), with the exporter's container writer.
 pub fn glb(json: &serde_json::Value, bin: &[u8]) -> Vec<u8> {
-    let mut text = serde_json::to_vec(json).unwrap();
-    while !text.len().is_multiple_of(4) {
-        text.push(b' ');
-    }
-    let mut bin = bin.to_vec();
-    while !bin.len().is_multiple_of(4) {
-        bin.push(0);
-    }
-    let total = 12 + 8 + text.len() + 8 + bin.len();
-    let mut out = Vec::new();
-    out.extend_from_slice(b"glTF");
-    out.extend_from_slice(&2u32.to_le_bytes());
-    out.extend_from_slice(&(total as u32).to_le_bytes());
-    out.extend_from_slice(&(text.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"JSON");
-    out.extend_from_slice(&text);
-    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"BIN\0");
-    out.extend_from_slice(&bin);
-    out
+    let text = serde_json::to_vec(json).unwrap();
+    retex::engine::asset::export::glb_container(text, bin.to_vec()).unwrap()
 }
 
 /// The CRC-32 (ISO-HDLC) PNG chunks carry, over a chunk's type and data.

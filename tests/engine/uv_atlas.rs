@@ -565,38 +565,7 @@ mod transfer {
 
 /// A GLB of a surface without UVs or normals (u32 indices).
 pub fn surface_glb(s: &Surface) -> Vec<u8> {
-    let mut bin = Vec::new();
-    let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
-    for p in &s.positions {
-        for k in 0..3 {
-            lo[k] = lo[k].min(p[k]);
-            hi[k] = hi[k].max(p[k]);
-            bin.extend_from_slice(&p[k].to_le_bytes());
-        }
-    }
-    let pos_len = bin.len();
-    for f in &s.faces {
-        for v in f {
-            bin.extend_from_slice(&v.to_le_bytes());
-        }
-    }
-    let json = serde_json::json!({
-        "asset": {"version": "2.0"},
-        "scene": 0,
-        "scenes": [{"nodes": [0]}],
-        "nodes": [{"mesh": 0}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
-        "buffers": [{"byteLength": bin.len()}],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": pos_len, "target": 34962},
-            {"buffer": 0, "byteOffset": pos_len, "byteLength": bin.len() - pos_len, "target": 34963}
-        ],
-        "accessors": [
-            {"bufferView": 0, "componentType": 5126, "count": s.positions.len(), "type": "VEC3", "min": lo, "max": hi},
-            {"bufferView": 1, "componentType": 5125, "count": s.faces.len() * 3, "type": "SCALAR"}
-        ]
-    });
-    crate::common::glb(&json, &bin)
+    retex::engine::asset::export::mesh_glb(&s.positions, &s.faces).unwrap()
 }
 
 fn write_obj(s: &Surface, path: &std::path::Path) {

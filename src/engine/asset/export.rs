@@ -233,14 +233,24 @@ fn finish(mut b: Builder, format: OutputFormat) -> Result<Vec<u8>, ExportError> 
     if asset_info.is_object() {
         asset_info["generator"] = json!(concat!("retex ", env!("CARGO_PKG_VERSION")));
     }
-    let mut text = serde_json::to_vec(&b.json)?;
+    let text = serde_json::to_vec(&b.json)?;
     if format == OutputFormat::Gltf {
         return Ok(text);
     }
-    while text.len() % 4 != 0 {
+    glb_container(text, b.bin)
+}
+
+/// Packs a glTF JSON document and its binary buffer into a GLB container (glTF 2.0 §4.4): the
+/// JSON chunk padded with spaces and the BIN chunk with zeros to 4 bytes; no BIN chunk when
+/// `bin` is empty. [`ExportError::TooLarge`] past the container's 4 GiB length field.
+pub fn glb_container(mut text: Vec<u8>, mut bin: Vec<u8>) -> Result<Vec<u8>, ExportError> {
+    while !text.len().is_multiple_of(4) {
         text.push(b' ');
     }
-    let bin_chunk = if b.bin.is_empty() { 0 } else { 8 + b.bin.len() };
+    while !bin.len().is_multiple_of(4) {
+        bin.push(0);
+    }
+    let bin_chunk = if bin.is_empty() { 0 } else { 8 + bin.len() };
     let total = 12 + 8 + text.len() + bin_chunk;
     if total as u64 > u32::MAX as u64 {
         return Err(ExportError::TooLarge {
@@ -254,10 +264,45 @@ fn finish(mut b: Builder, format: OutputFormat) -> Result<Vec<u8>, ExportError> 
     out.extend_from_slice(&(text.len() as u32).to_le_bytes());
     out.extend_from_slice(b"JSON");
     out.extend_from_slice(&text);
-    if !b.bin.is_empty() {
-        out.extend_from_slice(&(b.bin.len() as u32).to_le_bytes());
+    if !bin.is_empty() {
+        out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
         out.extend_from_slice(b"BIN\0");
-        out.extend_from_slice(&b.bin);
+        out.extend_from_slice(&bin);
     }
     Ok(out)
+}
+
+/// A GLB of one triangle mesh: POSITION (with the accessor bounds glTF requires) and u32
+/// indices; no UVs, normals or material (a target for the methods that generate an atlas).
+pub fn mesh_glb(positions: &[[f32; 3]], faces: &[[u32; 3]]) -> Result<Vec<u8>, ExportError> {
+    let mut bin = Vec::with_capacity(positions.len() * 12 + faces.len() * 12);
+    let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
+    for p in positions {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+            bin.extend_from_slice(&p[k].to_le_bytes());
+        }
+    }
+    let pos_len = bin.len();
+    for v in faces.iter().flatten() {
+        bin.extend_from_slice(&v.to_le_bytes());
+    }
+    let json = json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "buffers": [{"byteLength": bin.len()}],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": pos_len, "target": 34962},
+            {"buffer": 0, "byteOffset": pos_len, "byteLength": bin.len() - pos_len, "target": 34963}
+        ],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": positions.len(), "type": "VEC3", "min": lo, "max": hi},
+            {"bufferView": 1, "componentType": 5125, "count": faces.len() * 3, "type": "SCALAR"}
+        ]
+    });
+    glb_container(serde_json::to_vec(&json)?, bin)
 }
