@@ -43,6 +43,7 @@ mod ingest_edge_cases;
 mod memory_budget;
 mod meshmatch_defects;
 mod meshmatch_features;
+mod meshmatch_param_sweep;
 mod meshmatch_statistics;
 mod meshmatch_stripes;
 mod meshmatch_transfer;

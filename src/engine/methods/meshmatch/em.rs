@@ -565,7 +565,7 @@ impl<'a> CoarseToFine<'a> {
             centers: &lv.centers,
         };
         let keep = lv.fixed.map(|f| (f, lv.centers.as_slice()));
-        let sigma = params.vote_sigma * lv.radius;
+        let sigma = vote_sigma_at(params, level, self.levels - 1) * lv.radius;
         let mut colors = vote(&lv.stencil, &nnf, &patches, sigma, keep);
         let (iterations, converged) = self.iterate(&lv, &patches, sigma, &mut nnf, &mut colors)?;
         if level == 0 && params.nearest_neighbor_final {
@@ -868,6 +868,18 @@ impl<'a> CoarseToFine<'a> {
         }
         Ok((iterations, converged))
     }
+}
+
+/// Vote width of `level` (fan radii): `vote_sigma` on the coarsest level, `finest_vote_sigma` on
+/// level 0, geometric in between.
+fn vote_sigma_at(params: &MeshMatchParams, level: usize, top: usize) -> f32 {
+    let coarse = params.vote_sigma;
+    let fine = params.finest_vote_sigma.unwrap_or(coarse);
+    if top == 0 {
+        return fine;
+    }
+    let t = level as f32 / top as f32;
+    fine * (coarse / fine).powf(t)
 }
 
 /// Shape weight of `level`: `shape_weight` on the coarsest level, `finest_shape_weight` on level 0,
