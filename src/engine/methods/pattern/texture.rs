@@ -28,12 +28,20 @@
 //! search of `fit.rs`, provided that copy keeps at least [`COARSE_KEPT_VARIANCE`] (80%) of the
 //! pattern's colour variance (else the factor is halved, down to no copy): a pattern whose
 //! contrast is mostly texel-scale detail (a 512² wood grain) ranks orientations badly once
-//! reduced (a planted placement's orientation came 8th of 19 at factor 4). Other patterns are
-//! searched at full resolution only.
+//! reduced (a planted placement's orientation came 8th of 19 at factor 4). A pattern of at least
+//! 256 px a side ([`ALWAYS_HALVED_SIDE`] once halved) that fails that test keeps a 2× copy all
+//! the same: its full-resolution search costs four times the 2× one, and with the 3 + margin
+//! orientations refined at full resolution the 2× ranking lost little (512² SheenChair fabric
+//! onto Spot, 77% of the variance kept at 2×, 46% at 4×: seam error 0.297 against 0.295 when
+//! searched at full resolution, 0.314 with the 4× copy; the planted placements on the wood and
+//! fabric textures of `tests/engine/pattern_fit.rs` are still found). Other patterns are searched
+//! at full resolution only.
 //!
 //! **Memory.** About 28 bytes per texel (12 for the colours, 16 for the four half spectra of
-//! `T_0, T_1, T_2, |T|²` in complex f32) plus, during a fit, about 40 bytes per texel per
-//! orientation in flight. Patterns above [`MAX_PATTERN_PIXELS`] (2048², ≈ 117 MB resident) are
+//! `T_0, T_1, T_2, |T|²` in complex f32), a quarter or a sixteenth of that again for the
+//! reduced copy, plus, during a fit, about 8 bytes per texel per orientation in flight (the
+//! combined spectrum and the error image; the mask is splatted into its own bounding box only,
+//! see `fft2.rs`). Patterns above [`MAX_PATTERN_PIXELS`] (2048², ≈ 117 MB resident) are
 //! refused: the per-fit FFT cost grows with the texel count, and the paper's patterns are
 //! 128²–256².
 
@@ -77,6 +85,10 @@ pub const MAX_COARSE_FACTOR: usize = 4;
 /// The share of the pattern's colour variance the reduced copy must keep to be searched first
 /// (module doc).
 pub const COARSE_KEPT_VARIANCE: f32 = 0.8;
+
+/// A pattern whose halved sides are at least this (256² and up) always keeps its 2× copy, whatever
+/// share of its variance the copy keeps (module doc).
+pub const ALWAYS_HALVED_SIDE: usize = 128;
 
 /// The reduction factor of the coarse search for a `w × h` pattern: the largest of 4, 2 that
 /// divides both sides and keeps them at or above [`COARSE_MIN_SIDE`], else 1 (no coarse search).
@@ -161,7 +173,8 @@ impl PatternTexture {
         let mut s = coarse_factor(w, h);
         while s > 1 {
             let coarse = downsample(&texture.colour, w, h, s);
-            if kept_variance(&texture.colour, &coarse) >= COARSE_KEPT_VARIANCE {
+            let always = s == 2 && w / 2 >= ALWAYS_HALVED_SIDE && h / 2 >= ALWAYS_HALVED_SIDE;
+            if always || kept_variance(&texture.colour, &coarse) >= COARSE_KEPT_VARIANCE {
                 let coarse = Self::from_colour(w / s, h / s, toroidal, orientations, coarse);
                 texture.coarse = Some((Box::new(coarse), s));
                 break;
