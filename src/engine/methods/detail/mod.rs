@@ -13,7 +13,8 @@
 //! - [`patches`] (§3.2.1): the exponential-map patch of every vertex sampled into that grid, and
 //!   the 17-D detail feature per vertex.
 //! - [`geometric_features`] (§3.2.2): the 60-D geometric feature vector per vertex, HKS / WKS
-//!   at scales shared by a source and a target.
+//!   at scales shared by a source and a target; [`segmentation`] the SDF segments it measures
+//!   boundary distances to.
 //!
 //! Missing (see README "detail"): the synthesis (§3.3), the texture-space refinement, the
 //! outputs, and the method's registration.
@@ -23,4 +24,5 @@ pub mod geometric_features;
 pub mod hierarchy;
 pub mod metric;
 pub mod patches;
+pub mod segmentation;
 pub mod steerable;
