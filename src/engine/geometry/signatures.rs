@@ -285,6 +285,58 @@ pub fn wave_kernel_signature(
     let energies: Vec<f64> = (0..d)
         .map(|j| lo + 2.0 * sigma + j as f64 * delta)
         .collect();
+    Ok(wks_values(spectrum, energies, sigma, zero))
+}
+
+/// The Wave Kernel Signature at caller-chosen log-energies `energies` with filter width
+/// `sigma` (e.g. one set shared by two surfaces normalized to unit area, so that both are
+/// evaluated at the same scales); eigenvalues at most `zero_threshold · λ_max` are left out.
+/// `scales` of the result are `energies`.
+///
+/// # Errors
+/// [`GeometryError::InvalidParam`] for an empty or over-long `energies`, a non-finite energy, a
+/// `sigma` that is not finite and > 0, or an out-of-range `zero_threshold`;
+/// [`GeometryError::Degenerate`] as [`wave_kernel_signature`].
+pub fn wave_kernel_signature_at(
+    spectrum: &Spectrum,
+    energies: &[f64],
+    sigma: f64,
+    zero_threshold: f64,
+) -> Result<Signature, GeometryError> {
+    if !(1..=1000).contains(&energies.len()) {
+        return Err(GeometryError::InvalidParam {
+            name: "energies (count)",
+            value: energies.len() as f64,
+            range: "[1, 1000]",
+        });
+    }
+    if let Some(&e) = energies.iter().find(|e| !e.is_finite()) {
+        return Err(GeometryError::InvalidParam {
+            name: "energies",
+            value: e,
+            range: "finite",
+        });
+    }
+    if !(sigma.is_finite() && sigma > 0.0) {
+        return Err(GeometryError::InvalidParam {
+            name: "sigma",
+            value: sigma,
+            range: "(0, ∞)",
+        });
+    }
+    check_shape(spectrum)?;
+    let (_, max) = spectral_range(spectrum, zero_threshold)?;
+    Ok(wks_values(
+        spectrum,
+        energies.to_vec(),
+        sigma,
+        zero_threshold * max,
+    ))
+}
+
+/// WKS values at `energies` (filter width `sigma`), eigenvalues `<= zero` left out.
+fn wks_values(spectrum: &Spectrum, energies: Vec<f64>, sigma: f64, zero: f64) -> Signature {
+    let d = energies.len();
     let mut weights: Vec<f64> = spectrum
         .values
         .iter()
@@ -305,10 +357,10 @@ pub fn wave_kernel_signature(
             (0..spectrum.len()).for_each(|i| weights[i * d + j] /= total);
         }
     }
-    Ok(Signature {
-        scales: energies,
+    Signature {
         values: weighted_squares(spectrum, &weights, d),
-    })
+        scales: energies,
+    }
 }
 
 fn check_shape(spectrum: &Spectrum) -> Result<(), GeometryError> {

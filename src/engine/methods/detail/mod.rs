@@ -9,12 +9,20 @@
 //! - [`hierarchy`] (§3.1): four remeshed levels per shape, edge length halving per level, shared
 //!   absolute lengths between source and target (remesher: [`crate::engine::mesh::remesh`]).
 //! - [`steerable`] (§3.2.1): the 17 sub-band deviations of a steerable pyramid of a square grid
-//!   of displacements (the exponential-map patch sampling that feeds it is not written yet).
+//!   of displacements.
+//! - [`patches`] (§3.2.1): the exponential-map patch of every vertex sampled into that grid, and
+//!   the 17-D detail feature per vertex.
+//! - [`geometric_features`] (§3.2.2): the 60-D geometric feature vector per vertex, HKS / WKS
+//!   at scales shared by a source and a target; [`segmentation`] the SDF segments it measures
+//!   boundary distances to.
 //!
-//! Missing (see README "detail"): the detail and geometric features (§3.2.1-3.2.2), the synthesis
-//! (§3.3), the texture-space refinement and the outputs.
+//! Missing (see README "detail"): the synthesis (§3.3), the texture-space refinement, the
+//! outputs, and the method's registration.
 
 pub mod displacement;
+pub mod geometric_features;
 pub mod hierarchy;
 pub mod metric;
+pub mod patches;
+pub mod segmentation;
 pub mod steerable;

@@ -1,0 +1,9 @@
+//! The `detail` method's per-vertex features (Berkiten et al. 2017, §3.2.1-3.2.2) and the metric
+//! learning on them: one module of the engine tests holding the three test files.
+
+#[path = "detail_geometric.rs"]
+mod geometric;
+#[path = "detail_metric_features.rs"]
+mod metric_features;
+#[path = "detail_patches.rs"]
+mod patches;
