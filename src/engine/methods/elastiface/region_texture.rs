@@ -74,6 +74,12 @@ fn uv_set(asset: &Asset, p: usize) -> Option<usize> {
     (asset.primitives[p].tex_coords.len() > set).then_some(set)
 }
 
+/// One covered texel's template colour, re-laid colour (if matched) and ω.
+type TexelSample = ([f32; 4], Option<[f32; 4]>, f64);
+
+/// A material group: its triangles and their UVs.
+type Group = (Vec<Tri>, Vec<[[f32; 2]; 3]>);
+
 /// Texel values of one group: template, re-laid, ω, covered.
 struct Texels {
     a: Vec<[f32; 4]>,
@@ -84,7 +90,7 @@ struct Texels {
 }
 
 impl RegionTexture<'_> {
-    fn sample(&self, t: &Tri, bary: [f32; 3]) -> ([f32; 4], Option<[f32; 4]>, f64) {
+    fn sample(&self, t: &Tri, bary: [f32; 3]) -> TexelSample {
         let source = self.relaid.source;
         let a = self.template.base_color(t.primitive, t.triangle, bary);
         let at = SurfaceSample {
@@ -109,7 +115,7 @@ impl RegionTexture<'_> {
 
     fn texels(&self, tris: &[Tri], uvs: &[[[f32; 2]; 3]], size: u32) -> Texels {
         let map = rasterize_uv_layout(uvs, size, size);
-        let values: Vec<Option<([f32; 4], Option<[f32; 4]>, f64)>> = map
+        let values: Vec<Option<TexelSample>> = map
             .hits
             .par_iter()
             .map(|h| h.map(|h| self.sample(&tris[h.triangle as usize], h.bary)))
@@ -146,8 +152,7 @@ pub fn region_textures(
     control: &Control,
 ) -> Result<(Vec<Edit>, Vec<TextureReport>), MethodError> {
     let source = rt.relaid.source;
-    let mut groups: std::collections::BTreeMap<Option<usize>, (Vec<Tri>, Vec<[[f32; 2]; 3]>)> =
-        Default::default();
+    let mut groups: std::collections::BTreeMap<Option<usize>, Group> = Default::default();
     for (p, prim) in source.primitives.iter().enumerate() {
         let Some(set) = uv_set(source, p) else {
             continue;
