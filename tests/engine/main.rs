@@ -36,6 +36,7 @@ mod elastiface_blend;
 mod elastiface_inputs;
 mod elastiface_landmarks;
 mod elastiface_real;
+mod elastiface_region;
 mod elastiface_shapes;
 mod fuzz_ingest;
 mod geodesic_fans;

@@ -17,9 +17,11 @@
 //!    [`tangents`]: TANGENT recomputed with MikkTSpace;
 //! 7. [`metrics`]: Hausdorff distance, flipped triangles and residuals for the report;
 //! 8. [`blend`]: the linear morph of §5 (`params.blend.weight`) between the template and the
-//!    fitted result, positions and texture.
+//!    fitted result, positions and texture; with `params.blend.region` the part-based morph of
+//!    §5: [`region`] (the per-vertex weights), [`poisson`] (Laplacian blend of the positions,
+//!    Alexa 2003 with cotan weights), [`region_texture`] (gradient-domain texture blend, Pérez
+//!    et al. 2003) and [`region_colors`] (the same on COLOR_0 of primitives without UVs).
 //!
-//! Not implemented: the region blend of §5 (`params.blend.region`, Poisson blending), refused.
 //! Known shortfalls (measured by the tests, 2026-12-02; README "elastiface" has the tables): on
 //! an open disc with boundary-loop pairs one boundary vertex folds inward; real scans keep some
 //! flipped area (a deformed copy of the Lee Perry-Smith scan fitted back onto it: Hausdorff
@@ -35,7 +37,11 @@ pub mod frame;
 pub mod metrics;
 pub mod originals;
 pub mod params;
+pub mod poisson;
 pub mod refs;
+pub mod region;
+pub mod region_colors;
+pub mod region_texture;
 pub mod register;
 pub mod system;
 pub mod tangents;
@@ -80,6 +86,17 @@ pub struct FairingReport {
     pub unanchored_components: (usize, usize),
 }
 
+/// The region of a part-based morph (welded template vertices).
+#[derive(Clone, Debug, Serialize)]
+pub struct RegionReport {
+    /// Vertices with a weight above 0.
+    pub weighted_vertices: usize,
+    /// Vertices with weight 1.
+    pub full_vertices: usize,
+    /// Vertices with weight 0 (kept as the template's).
+    pub fixed_vertices: usize,
+}
+
 /// What the method reports.
 #[derive(Clone, Debug, Serialize)]
 pub struct ElastifaceReport {
@@ -114,6 +131,8 @@ pub struct ElastifaceReport {
     /// The morph weight of §5 (`params.blend.weight`), when given. The metrics above are those of
     /// the fitted result (w = 1).
     pub blend_weight: Option<f64>,
+    /// The part-based morph's region (`params.blend.region`), when given.
+    pub region: Option<RegionReport>,
     /// Baked textures.
     pub textures: Vec<TextureReport>,
     /// Primitives that received COLOR_0 through the shared vertex path.
@@ -213,6 +232,18 @@ pub fn run(
     let tgt = surface_of(target, &weld, "target")?;
     let src_bvh = Bvh::build(&src.positions, &src.faces);
     let tgt_bvh = Bvh::build(&tgt.positions, &tgt.faces);
+
+    let welded = writeback::welded_map(source, &src);
+    let region_weights = match params.region_blend() {
+        Some((b, r)) => Some(region::vertex_weights(
+            source,
+            &welded,
+            src.vertex_count(),
+            r,
+            b.feather_rings,
+        )?),
+        None => None,
+    };
 
     control.stage("correspondences", 0)?;
     let resolved = resolve_on_surfaces(
@@ -352,14 +383,47 @@ pub fn run(
 
     let _span = control.span(0.55, 1.0);
     let world: Vec<[f64; 3]> = fitted.iter().map(|p| frame.solve_to_target(*p)).collect();
-    let welded = writeback::welded_map(source, &src);
     let morph = params.output == OutputMode::MorphTarget;
     let blend_weight = params.blend_weight();
-    let placed = match blend_weight {
-        Some(w) if !morph => blend::blend_positions(&src_world, &world, w),
-        _ => world.clone(),
+    let region_solve = match &region_weights {
+        Some(r) => {
+            control.stage("region_geometry", 0)?;
+            let areas = system::voronoi_areas(&src_world, &src.faces)?;
+            let w = params.blend.as_ref().map_or(1.0, |b| b.weight);
+            let omega: Vec<f64> = r.iter().map(|x| w * x).collect();
+            Some((
+                poisson::MeshPoisson::new(&lap_s, &src.faces, r, areas)?,
+                omega,
+            ))
+        }
+        None => None,
     };
-    let to_source = |q: [f64; 3]| frame.target_to_source(q);
+    let placed = match (&region_solve, &region_weights) {
+        (Some((solver, omega)), Some(r)) => {
+            // In the template's placement; a morph target holds the w = 1 blend (the solution
+            // is affine in w) and glTF applies w.
+            let back: Vec<[f64; 3]> = world.iter().map(|q| frame.target_to_source(*q)).collect();
+            let full: Vec<f64>;
+            let om = if morph {
+                full = r.clone();
+                &full
+            } else {
+                omega
+            };
+            let x = solver.blend(&coords(&src_world), &coords(&back), om)?;
+            (0..src_world.len())
+                .map(|v| [x[0][v], x[1][v], x[2][v]])
+                .collect()
+        }
+        _ => match blend_weight {
+            Some(w) if !morph => blend::blend_positions(&src_world, &world, w),
+            _ => world.clone(),
+        },
+    };
+    let same = |q: [f64; 3]| q;
+    let back = |q: [f64; 3]| frame.target_to_source(q);
+    let to_source: &dyn Fn([f64; 3]) -> [f64; 3] =
+        if region_solve.is_some() { &same } else { &back };
     let follow = |p: [f64; 3]| match src_bvh.closest_point(p.map(|c| c as f32), f32::INFINITY) {
         Some(h) => refs::RefRow::face(src.faces[h.face as usize], h.bary).eval(&placed),
         None => frame.similarity.apply(p),
@@ -370,7 +434,7 @@ pub fn run(
             fitted: &placed,
             faces: &src.faces,
             welded: &welded,
-            to_source_frame: &to_source,
+            to_source_frame: to_source,
             follow_surface: &follow,
             morph,
             morph_weight: params.blend.as_ref().map_or(0.0, |b| b.weight as f32),
@@ -390,11 +454,31 @@ pub fn run(
             sampler: MaterialSampler::new(target),
             blend: blend_weight.map(|w| blend::TemplateColor::new(source, w)),
         };
-        let (tex_edits, out) = texture::relay_texture(&field, constraints, control)?;
-        edits.extend(tex_edits);
-        textures = out.textures;
-        vertex_colors = out.vertex_colors;
-        warnings.extend(out.warnings);
+        if let (Some((solver, omega)), Some(r)) = (&region_solve, &region_weights) {
+            let all = constraints.output.all_vertex_colors();
+            if !all {
+                let rt = region_texture::RegionTexture {
+                    relaid: &field,
+                    template: MaterialSampler::new(source),
+                    weights: r,
+                    w: params.blend.as_ref().map_or(1.0, |b| b.weight),
+                    max_texels: params.blend.as_ref().map_or(1, |b| b.max_region_texels),
+                };
+                let (tex_edits, reports) =
+                    region_texture::region_textures(&rt, constraints, control)?;
+                edits.extend(tex_edits);
+                textures = reports;
+            }
+            edits.extend(region_colors::region_vertex_colors(
+                &field, solver, omega, all, control,
+            )?);
+        } else {
+            let (tex_edits, out) = texture::relay_texture(&field, constraints, control)?;
+            edits.extend(tex_edits);
+            textures = out.textures;
+            vertex_colors = out.vertex_colors;
+            warnings.extend(out.warnings);
+        }
     } else {
         warnings.push(
             "the target has no base color texture and no COLOR_0: the source keeps its own texture"
@@ -429,11 +513,21 @@ pub fn run(
         residuals,
         output: params.output,
         blend_weight: params.blend.as_ref().map(|b| b.weight),
+        region: region_weights.as_ref().map(|r| RegionReport {
+            weighted_vertices: r.iter().filter(|&&x| x > 0.0).count(),
+            full_vertices: r.iter().filter(|&&x| x >= 1.0).count(),
+            fixed_vertices: r.iter().filter(|&&x| x <= 0.0).count(),
+        }),
         textures,
         vertex_colors,
         warnings: warnings.clone(),
     };
     Ok((edits, report))
+}
+
+/// Positions as three coordinate vectors.
+fn coords(x: &[[f64; 3]]) -> Vec<Vec<f64>> {
+    (0..3).map(|k| x.iter().map(|p| p[k]).collect()).collect()
 }
 
 fn bbox_diagonal(x: &[[f64; 3]]) -> f64 {

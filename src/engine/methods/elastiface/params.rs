@@ -24,10 +24,71 @@ pub struct BlendParams {
     /// Blend weight w: 0 gives the template back, 1 the fitted head with its re-laid texture.
     #[schemars(range(min = 0, max = 1))]
     pub weight: f64,
-    /// A region (a COLOR_0 channel of the source or a list of faces) for the Poisson blend:
-    /// not implemented yet, refused.
+    /// The part of the template that is blended ([`super::region`]): `{"channel": "r"}` (a
+    /// COLOR_0 channel of the source, per-vertex weight in [0, 1]) or a list of source face
+    /// indices (the source's triangles numbered across its primitives in order). Absent: the
+    /// whole head, blended linearly.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub region: Option<serde_json::Value>,
+    pub region: Option<Region>,
+    /// A face-list region's weight ramps up over this many vertex rings inside its border
+    /// (border ring 1/(n+1), ..., 1 from ring n on). Default 2: with 0 every region vertex has
+    /// weight 1 and the shape creases along the border (README "elastiface" has the sweep).
+    #[serde(default = "default_feather_rings")]
+    #[schemars(range(max = 20))]
+    pub feather_rings: usize,
+    /// At most this many texels of one texture in the region's gradient-domain solve (its
+    /// sparse Cholesky factor grows faster than the texel count); a larger region is refused.
+    /// Default 1,048,576 (README "elastiface" has the measured time and memory).
+    #[serde(default = "default_max_region_texels")]
+    #[schemars(range(min = 1, max = 16777216))]
+    pub max_region_texels: usize,
+}
+
+fn default_feather_rings() -> usize {
+    2
+}
+
+fn default_max_region_texels() -> usize {
+    1 << 20
+}
+
+/// A COLOR_0 channel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "lowercase")]
+pub enum Channel {
+    /// Red.
+    R,
+    /// Green.
+    G,
+    /// Blue.
+    B,
+    /// Alpha.
+    A,
+}
+
+impl Channel {
+    /// Index into an RGBA colour.
+    pub fn index(self) -> usize {
+        match self {
+            Channel::R => 0,
+            Channel::G => 1,
+            Channel::B => 2,
+            Channel::A => 3,
+        }
+    }
+}
+
+/// The region of a part-based blend (§5).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(untagged)]
+pub enum Region {
+    /// A COLOR_0 channel of the source: its value (clamped to [0, 1]) is the vertex weight.
+    Channel {
+        /// `r`, `g`, `b` or `a`.
+        channel: Channel,
+    },
+    /// Source face indices: weight 1 on their vertices (feathered), 0 elsewhere.
+    Faces(Vec<u32>),
 }
 
 /// Parameters of the `elastiface` method.
@@ -135,19 +196,29 @@ impl ElastifaceParams {
                     "must be a number in [0, 1]",
                 ));
             }
-            if blend.region.is_some() {
+            if matches!(&blend.region, Some(Region::Faces(f)) if f.is_empty()) {
                 return Err(ConstraintsError::new(
                     "params.blend.region",
-                    "the region blend (Poisson blending of Laplacians and texture gradients, §5) \
-                     is not implemented yet; use params.blend.weight alone",
+                    "the face list is empty: give at least one source face index",
                 ));
             }
         }
         Ok(params)
     }
 
-    /// The blend weight in effect: `None` for no blend or w = 1 (the fitted result as is).
+    /// The blend weight in effect: `None` for no blend or w = 1 (the fitted result as is), as
+    /// long as no region is given (a region blend always runs).
     pub fn blend_weight(&self) -> Option<f64> {
-        self.blend.as_ref().map(|b| b.weight).filter(|&w| w != 1.0)
+        self.blend
+            .as_ref()
+            .filter(|b| b.region.is_none())
+            .map(|b| b.weight)
+            .filter(|&w| w != 1.0)
+    }
+
+    /// The blend parameters when a region is given.
+    pub fn region_blend(&self) -> Option<(&BlendParams, &Region)> {
+        let b = self.blend.as_ref()?;
+        Some((b, b.region.as_ref()?))
     }
 }

@@ -138,6 +138,11 @@ impl PatternBuilder {
         }
     }
 
+    /// Entries `(i, j)` for every `j` in `cols` (the build symmetrises them).
+    pub fn clique_row(&mut self, i: usize, cols: &[usize]) {
+        self.cols[i].extend(cols.iter().filter(|&&j| j != i));
+    }
+
     /// The pattern of `Lᵀ A⁻¹ L` for a Laplacian whose unknowns start at `offset`.
     pub fn bilaplacian(&mut self, lap: &LapRows, offset: usize) {
         let mut buf = Vec::new();

@@ -49,7 +49,7 @@ pub struct RelaidColor<'a> {
 }
 
 impl RelaidColor<'_> {
-    fn fitted_point(
+    pub(super) fn fitted_point(
         &self,
         primitive: usize,
         vertices: [u32; 3],
@@ -68,7 +68,7 @@ impl RelaidColor<'_> {
     }
 
     /// Colour of the target at its closest point to `p`, and that target face.
-    fn color_near(&self, p: [f32; 3], hint: Option<u32>) -> Option<([f32; 4], u32)> {
+    pub(super) fn color_near(&self, p: [f32; 3], hint: Option<u32>) -> Option<([f32; 4], u32)> {
         let bound = hint.map_or(f32::INFINITY, |h| {
             self.target_surface.hint_bound(h as usize, p)
         });
@@ -110,7 +110,7 @@ pub fn target_has_color(target: &Asset) -> bool {
 }
 
 /// Whether a source primitive has the UV set its base colour would be baked through.
-fn has_uvs(asset: &Asset, p: usize) -> bool {
+pub(super) fn has_uvs(asset: &Asset, p: usize) -> bool {
     let set = asset.primitives[p]
         .material
         .and_then(|m| asset.materials.get(m))
