@@ -236,17 +236,15 @@ impl PgJobStore {
         self.block(async move {
             let mut c = pool.get().await.map_err(pool_error)?;
             let tx = c.transaction().await.map_err(db_error)?;
-            let sql = if expired_only {
-                "SELECT record FROM jobs WHERE status = 'processing'
-                 AND (lease_until IS NULL OR lease_until < $1) AND $2::TEXT IS NOT NULL
-                 ORDER BY created_at, id FOR UPDATE SKIP LOCKED"
-            } else {
-                "SELECT record FROM jobs WHERE status = 'processing'
-                 AND (lease_until IS NULL OR lease_until < $1 OR lease_owner = $2)
-                 ORDER BY created_at, id FOR UPDATE SKIP LOCKED"
-            };
+            // Owner "" matches no handle: only expired leases.
+            let owner = if expired_only { String::new() } else { owner };
             let rows = tx
-                .query(sql, &[&nanos(now), &owner])
+                .query(
+                    "SELECT record FROM jobs WHERE status = 'processing'
+                     AND (lease_until IS NULL OR lease_until < $1 OR lease_owner = $2)
+                     ORDER BY created_at, id FOR UPDATE SKIP LOCKED",
+                    &[&nanos(now), &owner],
+                )
                 .await
                 .map_err(db_error)?;
             let mut out = Recovery::default();
