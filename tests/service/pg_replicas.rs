@@ -309,8 +309,20 @@ impl Drop for Guard {
 }
 
 fn spawn_replica(data: &Path, url: &str) -> (Guard, String) {
+    spawn_role(data, url, "all")
+}
+
+fn spawn_role(data: &Path, url: &str, role: &str) -> (Guard, String) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_retex"))
-        .args(["serve", "--addr", "127.0.0.1:0", "--workers", "1"])
+        .args([
+            "serve",
+            "--addr",
+            "127.0.0.1:0",
+            "--workers",
+            "1",
+            "--role",
+            role,
+        ])
         .args(["--shutdown-secs", "5", "--memory-bytes", "0"])
         .arg("--data-dir")
         .arg(data)
@@ -371,4 +383,26 @@ fn two_serve_processes_on_one_database_run_ten_jobs_once_each() {
         &get(&format!("{base_b}/v1/jobs/{}/result", ids[0])).body,
         "service_pg_replicas_spot.glb",
     );
+}
+
+#[test]
+#[ignore = "needs PostgreSQL binaries (initdb, postgres, psql)"]
+fn a_cancel_sent_to_the_api_replica_stops_the_job_on_the_worker() {
+    let url = fresh_url();
+    let data = tempfile::tempdir().unwrap();
+    let (_api, api) = spawn_role(data.path(), &url, "api");
+    let (_worker, worker) = spawn_role(data.path(), &url, "worker");
+    // The worker serves no job routes.
+    assert_eq!(get(&format!("{worker}/v1/jobs")).status, 404);
+    // Spot at 8192² runs for seconds: long enough to cancel mid-job.
+    let r = submit(&api, &spot_parts(8192), &[]);
+    assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+    let id = r.json()["id"].as_str().unwrap().to_string();
+    wait_for(&api, &id, Duration::from_secs(60), |s| s == "processing");
+    let r = request("POST", &format!("{api}/v1/jobs/{id}/cancel"), &[], None);
+    assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+    // The worker's heartbeat (every second at most) brings the request; it records the cancel.
+    let doc = wait_for(&api, &id, Duration::from_secs(10), terminal);
+    assert_eq!(doc["status"], "canceled", "{doc}");
+    assert_eq!(doc["attempts"], 1);
 }
