@@ -93,6 +93,18 @@ pub struct ServeArgs {
     /// JSON log lines [env RETEX_LOG_JSON=1].
     #[arg(long)]
     pub log_json: bool,
+    /// PostgreSQL job store shared by replicas, postgres://USER:PASS@HOST:PORT/DB
+    /// [env RETEX_DATABASE_URL; default: the SQLite file in the data dir].
+    #[arg(long)]
+    pub database_url: Option<String>,
+    /// api (routes only), worker (runs jobs; health endpoints only) or all [env RETEX_ROLE;
+    /// default all].
+    #[arg(long)]
+    pub role: Option<retex::service::config::Role>,
+    /// Seconds a claimed job's lease lasts without a heartbeat (PostgreSQL)
+    /// [env RETEX_LEASE_SECS; default 30].
+    #[arg(long)]
+    pub lease_secs: Option<u64>,
 }
 
 /// What [`config`] decided besides the settings: where `data_dir` came from (for the error when
@@ -151,8 +163,13 @@ pub fn config(args: &ServeArgs) -> Result<(ServeConfig, Origins), String> {
         shutdown_secs,
         max_body_bytes,
         max_part_bytes,
-        max_texture_size
+        max_texture_size,
+        role,
+        lease_secs
     );
+    if let Some(url) = &args.database_url {
+        c.database_url = Some(url.clone());
+    }
     if let Some(v) = args.memory_bytes {
         c.memory_bytes = Some(v);
     }

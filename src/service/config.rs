@@ -105,6 +105,18 @@ pub struct ServeConfig {
     pub memory_bytes: Option<u64>,
     /// JSON log lines instead of text (env `RETEX_LOG_JSON=1`).
     pub log_json: bool,
+    /// PostgreSQL job store shared by replicas, e.g. `postgres://retex:pw@db:5432/retex`
+    /// (or `host=/run/postgresql user=retex dbname=retex`); unset (the default): the embedded
+    /// SQLite file under `data_dir` (env `RETEX_DATABASE_URL`). Blobs stay under `data_dir`,
+    /// which replicas must then share.
+    pub database_url: Option<String>,
+    /// What this process does: `api` (routes, no runner), `worker` (runner, health endpoints
+    /// and metrics only) or `all` (the default) (env `RETEX_ROLE`).
+    pub role: Role,
+    /// Seconds a claimed job's lease lasts without a heartbeat (PostgreSQL only): after a
+    /// replica dies, its jobs run again elsewhere this long later. Default 30
+    /// (env `RETEX_LEASE_SECS`).
+    pub lease_secs: u64,
     /// `RETEX_TOKENS` was set but names no token (empty or blank): a server meant to need
     /// tokens would start open. [`ServeConfig::validate`] refuses that unless the address is
     /// loopback.
@@ -142,7 +154,42 @@ impl Default for ServeConfig {
             limits: IngestLimits::default(),
             memory_bytes: None,
             log_json: false,
+            database_url: None,
+            role: Role::All,
+            lease_secs: 30,
             tokens_blank: false,
+        }
+    }
+}
+
+/// What a `retex serve` process does (issue 17).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Role {
+    /// The HTTP API only: accepts, lists and cancels jobs; runs none.
+    Api,
+    /// Runs jobs; serves only `/healthz`, `/readyz` and `/metrics`.
+    Worker,
+    /// Both (the single-process default).
+    #[default]
+    All,
+}
+
+impl Role {
+    /// Whether this role claims and runs jobs.
+    pub fn runs_jobs(self) -> bool {
+        self != Role::Api
+    }
+}
+
+impl std::str::FromStr for Role {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.trim() {
+            "api" => Ok(Role::Api),
+            "worker" => Ok(Role::Worker),
+            "all" => Ok(Role::All),
+            other => Err(format!("unknown role {other:?} (api, worker or all)")),
         }
     }
 }
@@ -284,6 +331,15 @@ impl ServeConfig {
         if let Some(v) = get("RETEX_MEMORY_BYTES") {
             self.memory_bytes = Some(parse("RETEX_MEMORY_BYTES", &v)?);
         }
+        if let Some(v) = get("RETEX_DATABASE_URL") {
+            self.database_url = Some(v.trim().to_string()).filter(|v| !v.is_empty());
+        }
+        if let Some(v) = get("RETEX_ROLE") {
+            self.role = parse("RETEX_ROLE", &v)?;
+        }
+        if let Some(v) = get("RETEX_LEASE_SECS") {
+            self.lease_secs = parse("RETEX_LEASE_SECS", &v)?;
+        }
         if let Some(v) = get("RETEX_LOG_JSON") {
             self.log_json = matches!(v.trim(), "1" | "true" | "yes");
         }
@@ -335,6 +391,26 @@ impl ServeConfig {
         }
         if self.idempotency_secs < 24 * 3600 {
             return bad("idempotency_secs", "keys are kept at least 24 h (86400)");
+        }
+        if let Some(url) = &self.database_url {
+            if !(url.starts_with("postgres://")
+                || url.starts_with("postgresql://")
+                || url.contains("host="))
+            {
+                return bad(
+                    "database_url",
+                    "must be a PostgreSQL URL (postgres://…) or key=value connection string",
+                );
+            }
+        }
+        if self.database_url.is_none() && self.role != Role::All {
+            return bad(
+                "role",
+                "api and worker roles share jobs through PostgreSQL: set database_url",
+            );
+        }
+        if !(3..=3600).contains(&self.lease_secs) {
+            return bad("lease_secs", "must be within 3..=3600");
         }
         if self.prune_interval_secs == 0 || self.progress_interval_ms == 0 {
             return bad("prune_interval_secs", "intervals must be positive");
@@ -397,6 +473,32 @@ mod tests {
             .apply_env(|k| (k == "RETEX_WORKERS").then(|| "many".to_string()))
             .unwrap_err();
         assert!(e.to_string().contains("RETEX_WORKERS"), "{e}");
+    }
+
+    #[test]
+    fn database_url_and_role_from_env_and_toml() {
+        let mut c = ServeConfig::default();
+        assert_eq!((c.database_url.as_deref(), c.role), (None, Role::All));
+        let env: HashMap<&str, &str> = [
+            ("RETEX_DATABASE_URL", "postgres://retex@db/retex"),
+            ("RETEX_ROLE", "worker"),
+        ]
+        .into();
+        c.apply_env(|k| env.get(k).map(|v| v.to_string())).unwrap();
+        assert_eq!(c.database_url.as_deref(), Some("postgres://retex@db/retex"));
+        assert!(!c.role.runs_jobs() || c.role == Role::Worker);
+        c.validate().unwrap();
+        assert!(c
+            .apply_env(|k| (k == "RETEX_ROLE").then(|| "boss".to_string()))
+            .is_err());
+        let p = Path::new("x.toml");
+        let c = ServeConfig::from_toml("role = \"api\"\ndatabase_url = \"host=/tmp user=x\"\n", p)
+            .unwrap();
+        assert_eq!(c.role, Role::Api);
+        assert!(!c.role.runs_jobs());
+        // A role without a shared database would split one process's jobs: refused.
+        assert!(ServeConfig::from_toml("role = \"worker\"\n", p).is_err());
+        assert!(ServeConfig::from_toml("database_url = \"mysql://x\"\n", p).is_err());
     }
 
     #[test]

@@ -22,6 +22,8 @@ mod job_stream;
 mod memory_budget;
 mod method_seam;
 mod openapi;
+mod pg_replicas;
+mod pg_server;
 mod preview_normals;
 mod recovery;
 mod robustness;

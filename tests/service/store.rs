@@ -1,5 +1,6 @@
-//! The embedded stores: `SqliteJobStore` (state machine, pagination, atomic claims, recovery,
-//! idempotency, retention, durability across reopen) and `FsBlobStore` (atomic writes, ranges,
+//! The stores: the job-store suite (state machine, pagination, atomic claims, recovery,
+//! idempotency, retention) run on both `SqliteJobStore` and `PgJobStore` (module
+//! `postgres_suite`, on a throw-away server), SQLite's durability across reopen, and `FsBlobStore` (atomic writes, ranges,
 //! key validation, prefix deletion).
 #![cfg(feature = "service")]
 
@@ -84,10 +85,7 @@ fn success() -> Finish {
     }
 }
 
-#[test]
-fn create_get_round_trip_keeps_every_field() {
-    let dir = TempDir::new("store");
-    let store = open(&dir);
+fn create_get_round_trip_keeps_every_field(store: Arc<dyn JobStore>) {
     let mut j = job(t0(), "project");
     j.idempotency_key = Some("k1".into());
     j.report = Some(serde_json::json!({"a": [1, 2]}));
@@ -100,10 +98,7 @@ fn create_get_round_trip_keeps_every_field() {
     assert!(store.create(&dup).is_err());
 }
 
-#[test]
-fn pagination_covers_every_job_once_newest_first_with_filters() {
-    let dir = TempDir::new("store");
-    let store = open(&dir);
+fn pagination_covers_every_job_once_newest_first_with_filters(store: Arc<dyn JobStore>) {
     let mut all = Vec::new();
     for i in 0..57 {
         // Several jobs share a timestamp so the id tie-break matters.
@@ -200,10 +195,7 @@ fn pagination_covers_every_job_once_newest_first_with_filters() {
     ));
 }
 
-#[test]
-fn concurrent_claims_never_take_the_same_job() {
-    let dir = TempDir::new("store");
-    let store = Arc::new(open(&dir));
+fn concurrent_claims_never_take_the_same_job(store: Arc<dyn JobStore>) {
     let n = 60;
     for i in 0..n {
         store
@@ -236,10 +228,7 @@ fn concurrent_claims_never_take_the_same_job() {
     assert_eq!(store.claim_next(Utc::now()).unwrap(), None);
 }
 
-#[test]
-fn claim_takes_the_oldest_and_bumps_revision() {
-    let dir = TempDir::new("store");
-    let store = open(&dir);
+fn claim_takes_the_oldest_and_bumps_revision(store: Arc<dyn JobStore>) {
     let newer = job(t0() + Duration::seconds(1), "project");
     let older = job(t0(), "project");
     store.create(&newer).unwrap();
@@ -265,10 +254,7 @@ fn claim_takes_the_oldest_and_bumps_revision() {
     assert_eq!(store.get(newer.id).unwrap().unwrap(), newer);
 }
 
-#[test]
-fn terminal_states_never_change() {
-    let dir = TempDir::new("store");
-    let store = open(&dir);
+fn terminal_states_never_change(store: Arc<dyn JobStore>) {
     let j = job(t0(), "project");
     store.create(&j).unwrap();
     store.claim_next(t0()).unwrap().unwrap();
@@ -310,10 +296,7 @@ fn terminal_states_never_change() {
     ));
 }
 
-#[test]
-fn finish_writes_status_results_and_time_together() {
-    let dir = TempDir::new("store");
-    let store = open(&dir);
+fn finish_writes_status_results_and_time_together(store: Arc<dyn JobStore>) {
     let j = job(t0(), "project");
     store.create(&j).unwrap();
     let claimed = store.claim_next(t0()).unwrap().unwrap();
@@ -341,10 +324,7 @@ fn finish_writes_status_results_and_time_together() {
     assert_eq!(listed(JobStatus::Processing), 0);
 }
 
-#[test]
-fn cancel_if_enqueued_cancels_only_enqueued_jobs() {
-    let dir = TempDir::new("store");
-    let store = open(&dir);
+fn cancel_if_enqueued_cancels_only_enqueued_jobs(store: Arc<dyn JobStore>) {
     let a = job(t0(), "project");
     let b = job(t0() + Duration::seconds(1), "project");
     store.create(&a).unwrap();
@@ -363,10 +343,7 @@ fn cancel_if_enqueued_cancels_only_enqueued_jobs() {
     );
 }
 
-#[test]
-fn recover_requeues_processing_jobs_and_fails_after_max_attempts() {
-    let dir = TempDir::new("store");
-    let store = open(&dir);
+fn recover_requeues_processing_jobs_and_fails_after_max_attempts(store: Arc<dyn JobStore>) {
     let j = job(t0(), "project");
     let other = job(t0() + Duration::seconds(1), "project");
     store.create(&j).unwrap();
@@ -394,10 +371,7 @@ fn recover_requeues_processing_jobs_and_fails_after_max_attempts() {
     assert_eq!(store.get(other.id).unwrap().unwrap(), other);
 }
 
-#[test]
-fn idempotency_key_same_hash_returns_job_different_hash_is_refused() {
-    let dir = TempDir::new("store");
-    let store = open(&dir);
+fn idempotency_key_same_hash_returns_job_different_hash_is_refused(store: Arc<dyn JobStore>) {
     let mut a = job(t0(), "project");
     a.idempotency_key = Some("key-1".into());
     a.request_hash = "hash-a".into();
@@ -443,10 +417,7 @@ fn idempotency_key_same_hash_returns_job_different_hash_is_refused() {
     );
 }
 
-#[test]
-fn prune_removes_only_old_terminal_jobs() {
-    let dir = TempDir::new("store");
-    let store = open(&dir);
+fn prune_removes_only_old_terminal_jobs(store: Arc<dyn JobStore>) {
     let old_done = job(t0(), "project");
     let new_done = job(t0() + Duration::seconds(1), "project");
     let old_running = job(t0() - Duration::days(30), "project");
@@ -485,10 +456,7 @@ fn prune_removes_only_old_terminal_jobs() {
     assert_eq!(counts.oldest_enqueued, Some(old_enqueued.created_at));
 }
 
-#[test]
-fn delete_removes_finished_jobs_only() {
-    let dir = TempDir::new("store");
-    let store = open(&dir);
+fn delete_removes_finished_jobs_only(store: Arc<dyn JobStore>) {
     let j = job(t0(), "project");
     store.create(&j).unwrap();
     assert!(matches!(
@@ -532,6 +500,65 @@ fn everything_survives_reopen() {
         .query_row("SELECT COUNT(*) FROM schema_version", [], |r| r.get(0))
         .unwrap();
     assert_eq!(rows, 1);
+}
+
+/// Instantiates the job-store suite above for one store: one `#[test]` per check, each on a
+/// fresh store from `$open` (which returns a guard to keep alive and the store), each with the
+/// attribute given (`#[ignore = …]` for PostgreSQL).
+macro_rules! job_store_suite {
+    ($open:expr, #[$attr:meta]) => {
+        job_store_suite!(@each $open, $attr,
+            create_get_round_trip_keeps_every_field,
+            pagination_covers_every_job_once_newest_first_with_filters,
+            concurrent_claims_never_take_the_same_job,
+            claim_takes_the_oldest_and_bumps_revision,
+            terminal_states_never_change,
+            finish_writes_status_results_and_time_together,
+            cancel_if_enqueued_cancels_only_enqueued_jobs,
+            recover_requeues_processing_jobs_and_fails_after_max_attempts,
+            idempotency_key_same_hash_returns_job_different_hash_is_refused,
+            prune_removes_only_old_terminal_jobs,
+            delete_removes_finished_jobs_only
+        );
+    };
+    (@each $open:expr, $attr:meta, $($name:ident),*) => {
+        $(
+            #[test]
+            #[$attr]
+            fn $name() {
+                let (_guard, store) = $open;
+                super::$name(store);
+            }
+        )*
+    };
+}
+
+/// The suite on the embedded SQLite store.
+mod sqlite_suite {
+    use super::*;
+
+    fn open_sqlite() -> (TempDir, Arc<dyn JobStore>) {
+        let dir = TempDir::new("store");
+        let store: Arc<dyn JobStore> = Arc::new(open(&dir));
+        (dir, store)
+    }
+
+    job_store_suite!(open_sqlite(), #[doc = "On SQLite."]);
+}
+
+/// The same suite on PostgreSQL: a fresh database of the test binary's throw-away server
+/// (`pg_server`) per test.
+mod postgres_suite {
+    use super::*;
+    use retex::service::store::postgres::{PgJobStore, DEFAULT_LEASE};
+
+    fn open_pg() -> ((), Arc<dyn JobStore>) {
+        let url = crate::pg_server::fresh_url();
+        let store: Arc<dyn JobStore> = Arc::new(PgJobStore::connect(&url, DEFAULT_LEASE).unwrap());
+        ((), store)
+    }
+
+    job_store_suite!(open_pg(), #[ignore = "needs PostgreSQL binaries (initdb, postgres, psql)"]);
 }
 
 // ---------------------------------------------------------------- blobs

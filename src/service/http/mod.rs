@@ -23,9 +23,11 @@ use tower_http::timeout::RequestBodyTimeoutLayer;
 use tower_http::trace::TraceLayer;
 
 use crate::engine::methods::Registry;
+use crate::service::config::Role;
 use crate::service::config::ServeConfig;
 use crate::service::jobs::runner::{Runner, RunnerConfig};
 use crate::service::store::fs::FsBlobStore;
+use crate::service::store::postgres::PgJobStore;
 use crate::service::store::sqlite::SqliteJobStore;
 use crate::service::store::{BlobStore, JobStore, StoreError};
 
@@ -121,7 +123,9 @@ async fn problem_rejections(
 /// The application with all routes and layers.
 pub fn router(state: AppState) -> Router {
     let config = state.config.clone();
-    let api = Router::new()
+    // Role `worker` (issue 17) serves only the health endpoints and metrics.
+    let worker_only = config.role == Role::Worker;
+    let jobs_api = Router::new()
         .route(
             "/v1/jobs",
             // The body limit is enforced by `linger::SharedBody` inside the handler.
@@ -138,7 +142,8 @@ pub fn router(state: AppState) -> Router {
         .route("/v1/jobs/{id}/events", get(events::events))
         .route("/v1/openapi.json", get(openapi::openapi_json))
         .route("/v1/methods", get(dashboard::methods))
-        .route("/v1/jobs/{id}/constraints", get(dashboard::constraints))
+        .route("/v1/jobs/{id}/constraints", get(dashboard::constraints));
+    let api = if worker_only { Router::new() } else { jobs_api }
         .route("/healthz", get(ops::healthz))
         .route("/readyz", get(ops::readyz))
         .route("/metrics", get(metrics::metrics))
@@ -166,6 +171,9 @@ pub fn router(state: AppState) -> Router {
         .route("/", get(dashboard::index))
         .route("/dashboard/{*path}", get(dashboard::file))
         .layer(TraceLayer::new_for_http());
+    if worker_only {
+        return api.with_state(state);
+    }
     pages.merge(api).with_state(state)
 }
 
@@ -204,8 +212,17 @@ pub async fn start_with_stores(
     config.validate().map_err(|e| e.to_string())?;
     std::fs::create_dir_all(&config.data_dir)
         .map_err(|e| format!("data dir {}: {e}", config.data_dir.display()))?;
-    let jobs: Arc<dyn JobStore> =
-        Arc::new(SqliteJobStore::open(&config.db_path()).map_err(|e| e.to_string())?);
+    let jobs: Arc<dyn JobStore> = match config.database_url.clone() {
+        // Connecting blocks (the store runs its own runtime), so it goes off the async thread.
+        Some(url) => {
+            let lease = Duration::from_secs(config.lease_secs);
+            let store = tokio::task::spawn_blocking(move || PgJobStore::connect(&url, lease))
+                .await
+                .map_err(|e| e.to_string())?;
+            Arc::new(store.map_err(|e| format!("database: {e}"))?)
+        }
+        None => Arc::new(SqliteJobStore::open(&config.db_path()).map_err(|e| e.to_string())?),
+    };
     let blobs: Arc<dyn BlobStore> =
         Arc::new(FsBlobStore::open(&config.blob_dir()).map_err(|e| e.to_string())?);
     let (jobs, blobs) = wrap(jobs, blobs);
@@ -218,6 +235,7 @@ pub async fn start_with_stores(
             progress_interval: Duration::from_millis(config.progress_interval_ms),
             registry: registry.clone(),
             storage_retry: Duration::from_secs(config.storage_retry_secs),
+            claim: config.role.runs_jobs(),
         },
         jobs.clone(),
         blobs.clone(),

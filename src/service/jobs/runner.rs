@@ -28,6 +28,14 @@
 //! after the deadline are cancelled the same way but put back to `enqueued` instead (they run
 //! again after restart); such a stop gives back the attempt, so rolling restarts never fail a
 //! job with `too-many-attempts`; only crashes (a job found processing at start) count.
+//!
+//! Replicas (a store with [`JobStore::lease_duration`], i.e. PostgreSQL): while a job runs its
+//! task renews the lease every third of the lease time (at most every second) with
+//! [`JobStore::heartbeat`], which also brings a cancel sent through another replica (handled as
+//! a local cancel); a lost lease (another replica reclaimed the job) stops the engine and
+//! records nothing. Every dispatcher tick re-enqueues jobs whose lease expired
+//! ([`JobStore::reclaim_expired`]). With [`RunnerConfig::claim`] off (role `api`) the runner
+//! claims nothing and runs no recovery: it only relays events and cancels.
 
 use std::cell::Cell;
 use std::collections::HashMap;
@@ -57,7 +65,7 @@ use crate::service::problem_table::{
     constraints_problem, internal_problem, panic_problem, result_not_stored_problem,
     texture_size_problem, transfer_problem,
 };
-use crate::service::store::{BlobStore, Finish, JobStore, StoreError};
+use crate::service::store::{BlobStore, Finish, JobStore, Lease, StoreError};
 
 /// Store writes of progress are at most this frequent per job.
 pub const DB_PROGRESS_INTERVAL: Duration = Duration::from_millis(500);
@@ -113,6 +121,8 @@ pub struct RunnerConfig {
     /// After a job's output write hit a full disk, how long no job is claimed (the job goes
     /// back to the queue). Default: 30 s.
     pub storage_retry: Duration,
+    /// Claim and run jobs (roles `worker` and `all`); off for role `api`. Default: on.
+    pub claim: bool,
 }
 
 impl Default for RunnerConfig {
@@ -125,6 +135,7 @@ impl Default for RunnerConfig {
             progress_interval: Duration::from_millis(100),
             registry: Registry::builtin(),
             storage_retry: Duration::from_secs(30),
+            claim: true,
         }
     }
 }
@@ -252,7 +263,11 @@ impl Runner {
                 .map_err(|e| StoreError::Io(std::io::Error::other(format!("engine pool: {e}"))))?;
             pools.push((Arc::new(pool), Arc::new(AtomicBool::new(false))));
         }
-        let recovery = jobs.recover(config.max_attempts, Utc::now())?;
+        let recovery = if config.claim {
+            jobs.recover(config.max_attempts, Utc::now())?
+        } else {
+            Default::default()
+        };
         if !recovery.requeued.is_empty() || !recovery.failed.is_empty() {
             tracing::warn!(
                 requeued = recovery.requeued.len(),
@@ -420,7 +435,26 @@ impl Runner {
 
     /// Claims jobs while workers are free; sleeps until notified or the tick.
     async fn dispatch(self: Arc<Self>) {
+        if !self.config.claim {
+            return;
+        }
+        let leased = self.jobs.lease_duration().is_some();
+        let mut last_reclaim: Option<Instant> = None;
         loop {
+            if leased && last_reclaim.is_none_or(|t| t.elapsed() >= DISPATCH_TICK) {
+                last_reclaim = Some(Instant::now());
+                let (jobs, max) = (Arc::clone(&self.jobs), self.config.max_attempts);
+                match tokio::task::spawn_blocking(move || jobs.reclaim_expired(max, Utc::now()))
+                    .await
+                {
+                    Ok(Ok(r)) if !r.requeued.is_empty() || !r.failed.is_empty() => {
+                        tracing::warn!(requeued = ?r.requeued, failed = ?r.failed, "reclaimed jobs whose lease expired");
+                    }
+                    Ok(Ok(_)) => {}
+                    Ok(Err(e)) => tracing::warn!(error = %e, "reclaiming expired leases failed"),
+                    Err(e) => tracing::warn!(error = %e, "reclaiming expired leases panicked"),
+                }
+            }
             while !self.stopping.load(Ordering::SeqCst)
                 && self.busy_workers() < self.config.workers
                 && !self.storage_paused()
@@ -526,6 +560,13 @@ impl Runner {
         let mut last_stored = job.progress.clone();
         let mut last_store_at: Option<Instant> = None;
         let mut canceled = false;
+        let mut lost = false;
+        let lease = self.jobs.lease_duration();
+        let beat = lease.map_or(Duration::from_secs(3600), |l| {
+            (l / 3).clamp(Duration::from_millis(100), Duration::from_secs(1))
+        });
+        let mut heartbeat = tokio::time::interval(beat);
+        heartbeat.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
         let outcome = loop {
             tokio::select! {
                 r = &mut rx => break r.unwrap_or_else(|_| {
@@ -536,6 +577,27 @@ impl Runner {
                     // engine reaches its next cancel check and returns.
                     canceled = true;
                     self.store_finish(id, Finish::Canceled).await;
+                }
+                _ = heartbeat.tick(), if lease.is_some() && !canceled => {
+                    let jobs = Arc::clone(&self.jobs);
+                    match tokio::task::spawn_blocking(move || jobs.heartbeat(id, Utc::now())).await {
+                        Ok(Ok(Lease::Held { cancel_requested: false })) => {}
+                        Ok(Ok(Lease::Held { cancel_requested: true })) => {
+                            tracing::info!(%id, "cancel requested through another replica");
+                            running.client_cancel.store(true, Ordering::SeqCst);
+                            control.cancel();
+                            canceled = true;
+                            self.store_finish(id, Finish::Canceled).await;
+                        }
+                        Ok(Ok(Lease::Lost)) => {
+                            tracing::warn!(%id, "lease lost: another replica took the job; stopping it here");
+                            control.cancel();
+                            canceled = true;
+                            lost = true;
+                        }
+                        Ok(Err(e)) => tracing::warn!(%id, error = %e, "renewing the lease failed"),
+                        Err(e) => tracing::warn!(%id, error = %e, "renewing the lease panicked"),
+                    }
                 }
                 _ = ticker.tick(), if !canceled => {
                     let p = combined_progress(control.progress(), preview.progress());
@@ -568,7 +630,7 @@ impl Runner {
                 Outcome::Failed(_) | Outcome::StorageFull(_) => "failed",
                 Outcome::Canceled => "canceled",
             };
-            tracing::info!(%id, engine = how, "canceled job's engine call returned");
+            tracing::info!(%id, engine = how, lost, "canceled job's engine call returned");
             return;
         }
         // A job faster than the progress interval never stored its stage counts: store the

@@ -1,8 +1,15 @@
 //! Durable storage behind two traits: [`JobStore`] (job records, idempotency keys) and
 //! [`BlobStore`] (uploaded files and results). The embedded implementations are SQLite in WAL
 //! mode with `synchronous=FULL` ([`sqlite::SqliteJobStore`]) and a data directory with atomic
-//! writes ([`fs::FsBlobStore`]); a networked backend can implement the same traits without
-//! touching the routes.
+//! writes ([`fs::FsBlobStore`]); [`postgres::PgJobStore`] is the networked job store that
+//! several `retex serve` replicas share (issue 17), behind the same traits.
+//!
+//! Leases (multi-replica stores only): a store whose jobs several processes claim says so
+//! through [`JobStore::lease_duration`]; the runner then renews the lease of each running job
+//! with [`JobStore::heartbeat`] (which also carries a cancel requested through any replica) and
+//! calls [`JobStore::reclaim_expired`] periodically, so the jobs of a replica that died go back
+//! to the queue. The defaults (no lease, nothing to reclaim) keep the single-process semantics
+//! of SQLite.
 //!
 //! Both traits are synchronous (SQLite and the file system are); async callers use
 //! `tokio::task::spawn_blocking`. Blob keys are relative paths of `[A-Za-z0-9._-]` segments
@@ -17,6 +24,7 @@ use uuid::Uuid;
 use super::model::{ArtifactRef, JobProgress, JobRecord, JobStatus, Problem};
 
 pub mod fs;
+pub mod postgres;
 pub mod sqlite;
 
 /// Storage failures.
@@ -179,6 +187,20 @@ pub struct StatusCounts {
     pub oldest_enqueued: Option<DateTime<Utc>>,
 }
 
+/// What [`JobStore::heartbeat`] found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Lease {
+    /// The lease is ours and was renewed; `cancel_requested` when a client asked (through any
+    /// replica) to cancel the job.
+    Held {
+        /// A cancel request is recorded on the job.
+        cancel_requested: bool,
+    },
+    /// The job is no longer ours: finished, deleted, or reclaimed by another replica after the
+    /// lease expired. The runner stops it and records nothing.
+    Lost,
+}
+
 /// Durable job records.
 pub trait JobStore: Send + Sync + 'static {
     /// Inserts an enqueued job. With an idempotency key that was seen within the key retention:
@@ -240,6 +262,28 @@ pub trait JobStore: Send + Sync + 'static {
     /// ([`JobStore::counts`]).
     fn probe(&self) -> Result<(), StoreError> {
         self.counts().map(|_| ())
+    }
+    /// How long a claim holds a job without a [`JobStore::heartbeat`]; `None` (the default)
+    /// for a store used by one process only, whose claims last until that process restarts.
+    fn lease_duration(&self) -> Option<std::time::Duration> {
+        None
+    }
+    /// Renews the lease of a job this store handle claimed and reports a cancel request.
+    /// Default (no leases): held, no request (cancels reach the runner in-process).
+    fn heartbeat(&self, _id: Uuid, _now: DateTime<Utc>) -> Result<Lease, StoreError> {
+        Ok(Lease::Held {
+            cancel_requested: false,
+        })
+    }
+    /// Puts processing jobs whose lease expired before `now` back in the queue (or fails them
+    /// at `max_attempts`, as [`JobStore::recover`]); live leases are never touched. Default:
+    /// nothing (no leases).
+    fn reclaim_expired(
+        &self,
+        _max_attempts: u32,
+        _now: DateTime<Utc>,
+    ) -> Result<Recovery, StoreError> {
+        Ok(Recovery::default())
     }
 }
 

@@ -97,7 +97,7 @@ impl From<serde_json::Error> for StoreError {
 }
 
 /// Nanoseconds since the epoch (saturating outside 1677..2262, far from any real job time).
-fn nanos(t: DateTime<Utc>) -> i64 {
+pub(super) fn nanos(t: DateTime<Utc>) -> i64 {
     t.timestamp_nanos_opt().unwrap_or(if t.timestamp() < 0 {
         i64::MIN
     } else {
@@ -105,7 +105,7 @@ fn nanos(t: DateTime<Utc>) -> i64 {
     })
 }
 
-fn from_nanos(n: i64) -> DateTime<Utc> {
+pub(super) fn from_nanos(n: i64) -> DateTime<Utc> {
     DateTime::from_timestamp_nanos(n)
 }
 
@@ -296,7 +296,7 @@ fn update_record(tx: &Transaction<'_>, job: &JobRecord) -> Result<(), StoreError
     Ok(())
 }
 
-fn encode_cursor(job: &JobRecord) -> String {
+pub(super) fn encode_cursor(job: &JobRecord) -> String {
     base64::engine::general_purpose::URL_SAFE_NO_PAD.encode(format!(
         "{}|{}",
         nanos(job.created_at),
@@ -304,7 +304,7 @@ fn encode_cursor(job: &JobRecord) -> String {
     ))
 }
 
-fn decode_cursor(cursor: &str) -> Result<(i64, String), StoreError> {
+pub(super) fn decode_cursor(cursor: &str) -> Result<(i64, String), StoreError> {
     let bad = || StoreError::InvalidCursor(cursor.to_string());
     let bytes = base64::engine::general_purpose::URL_SAFE_NO_PAD
         .decode(cursor)
@@ -316,7 +316,21 @@ fn decode_cursor(cursor: &str) -> Result<(i64, String), StoreError> {
     Ok((t, id.to_string()))
 }
 
-fn conflict(job: &JobRecord, what: &'static str) -> StoreError {
+/// The error of a job that recovery fails after `attempts` interrupted starts.
+pub(super) fn too_many_attempts(attempts: u32, max_attempts: u32) -> Problem {
+    Problem {
+        kind: "/problems/too-many-attempts".into(),
+        title: "the job was interrupted too many times".into(),
+        status: 500,
+        detail: format!(
+            "the job was started {attempts} times and interrupted each time (server stopped or crashed); the limit is {max_attempts}"
+        ),
+        field: None,
+        limit: Some(max_attempts.into()),
+    }
+}
+
+pub(super) fn conflict(job: &JobRecord, what: &'static str) -> StoreError {
     StoreError::Conflict {
         id: job.id,
         status: job.status,
@@ -551,17 +565,7 @@ impl JobStore for SqliteJobStore {
                 if job.attempts >= max_attempts {
                     job.status = JobStatus::Failed;
                     job.finished_at = Some(now);
-                    job.error = Some(Problem {
-                        kind: "/problems/too-many-attempts".into(),
-                        title: "the job was interrupted too many times".into(),
-                        status: 500,
-                        detail: format!(
-                            "the job was started {} times and interrupted each time (server stopped or crashed); the limit is {max_attempts}",
-                            job.attempts
-                        ),
-                        field: None,
-                        limit: Some(max_attempts.into()),
-                    });
+                    job.error = Some(too_many_attempts(job.attempts, max_attempts));
                     out.failed.push(job.id);
                 } else {
                     job.status = JobStatus::Enqueued;
