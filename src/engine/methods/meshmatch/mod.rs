@@ -250,14 +250,14 @@ pub struct MeshMatchParams {
     /// the source instead of piling onto its most common patches (see `em`). 0 turns it off.
     #[schemars(range(min = 0, max = 100))]
     pub completeness_weight: f32,
-    /// Vote Gaussian σ as a fraction of the fan radius, on the coarsest level. Default 0.1:
-    /// with `finest_vote_sigma` 0.5 it keeps the source's colour proportions on three real
-    /// pairs and two seeds where a constant 0.5 lets the majority colour swallow small regions
-    /// (README, meshmatch, "Colour proportions").
+    /// Vote Gaussian σ as a fraction of the fan radius (on the coarsest level when
+    /// `finest_vote_sigma` is set). Default 0.5.
     #[schemars(range(max = 10), extend("exclusiveMinimum" = 0))]
     pub vote_sigma: f32,
-    /// Vote σ on the finest level (geometric in between); `null` = `vote_sigma` on every level.
-    /// Default 0.5 (the earlier constant).
+    /// Vote σ on the finest level (geometric in between). Default: `vote_sigma` on every level.
+    /// A small σ on some levels keeps the source's colour proportions on real pairs but breaks
+    /// the stripe, band and by-example tests (README, meshmatch, "Colour proportions"), so it
+    /// is an option, not the default.
     #[schemars(range(max = 10), extend("exclusiveMinimum" = 0))]
     pub finest_vote_sigma: Option<f32>,
     /// Copy the matched colour at the finest level instead of voting (paper's last step).
@@ -301,8 +301,8 @@ impl Default for MeshMatchParams {
             shape_weight: 2.0,
             finest_shape_weight: None,
             completeness_weight: 0.0,
-            vote_sigma: 0.1,
-            finest_vote_sigma: Some(0.5),
+            vote_sigma: 0.5,
+            finest_vote_sigma: None,
             nearest_neighbor_final: true,
             randomized_rotations: false,
             example: None,
