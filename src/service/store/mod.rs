@@ -111,6 +111,32 @@ pub enum Finish {
     Canceled,
 }
 
+impl Finish {
+    /// Writes this ending into `job` (status, results or error, `finished_at`, revision): the
+    /// one transition every store applies inside its own transaction.
+    pub fn apply(self, job: &mut JobRecord, now: DateTime<Utc>) {
+        match self {
+            Finish::Succeeded { artifacts, report } => {
+                job.status = JobStatus::Succeeded;
+                job.artifacts = artifacts;
+                job.report = Some(report);
+                job.error = None;
+                job.progress.stage = "done".into();
+                job.progress.fraction = 1.0;
+                job.progress.stages_done = job.progress.stages_total;
+            }
+            Finish::Failed { error, report } => {
+                job.status = JobStatus::Failed;
+                job.error = Some(error);
+                job.report = report;
+            }
+            Finish::Canceled => job.status = JobStatus::Canceled,
+        }
+        job.finished_at = Some(now);
+        job.revision += 1;
+    }
+}
+
 impl StoreError {
     /// The disk or the quota is full (`ENOSPC`, `EDQUOT`, `SQLITE_FULL`): a condition of the
     /// server, not of the request, that may clear when space is freed.

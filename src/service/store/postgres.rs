@@ -613,25 +613,7 @@ impl JobStore for PgJobStore {
             if job.status == JobStatus::Processing && !holds(&holder, &owner) {
                 return Err(conflict(&job, "finish a job leased by another replica"));
             }
-            match outcome {
-                Finish::Succeeded { artifacts, report } => {
-                    job.status = JobStatus::Succeeded;
-                    job.artifacts = artifacts;
-                    job.report = Some(report);
-                    job.error = None;
-                    job.progress.stage = "done".into();
-                    job.progress.fraction = 1.0;
-                    job.progress.stages_done = job.progress.stages_total;
-                }
-                Finish::Failed { error, report } => {
-                    job.status = JobStatus::Failed;
-                    job.error = Some(error);
-                    job.report = report;
-                }
-                Finish::Canceled => job.status = JobStatus::Canceled,
-            }
-            job.finished_at = Some(now);
-            job.revision += 1;
+            outcome.apply(&mut job, now);
             update_record(&*tx, &job).await?;
             tx.commit().await.map_err(db_error)?;
             Ok(job)

@@ -511,25 +511,7 @@ impl JobStore for SqliteJobStore {
             if job.status.is_terminal() {
                 return Err(conflict(&job, "finish a finished job"));
             }
-            match outcome {
-                Finish::Succeeded { artifacts, report } => {
-                    job.status = JobStatus::Succeeded;
-                    job.artifacts = artifacts;
-                    job.report = Some(report);
-                    job.error = None;
-                    job.progress.stage = "done".into();
-                    job.progress.fraction = 1.0;
-                    job.progress.stages_done = job.progress.stages_total;
-                }
-                Finish::Failed { error, report } => {
-                    job.status = JobStatus::Failed;
-                    job.error = Some(error);
-                    job.report = report;
-                }
-                Finish::Canceled => job.status = JobStatus::Canceled,
-            }
-            job.finished_at = Some(now);
-            job.revision += 1;
+            outcome.apply(&mut job, now);
             update_record(tx, &job)?;
             Ok(job)
         })

@@ -74,18 +74,26 @@ impl<'a> TemplateColor<'a> {
     /// The blend at vertex `v` of a primitive without UVs: its own colour is the material factor
     /// times its COLOR_0 (white without).
     pub fn at_vertex(&self, relaid: [f32; 4], primitive: usize, v: usize) -> [f32; 4] {
-        let asset = self.sampler.asset();
-        let prim = &asset.primitives[primitive];
-        let factor = prim
-            .material
-            .and_then(|m| asset.materials.get(m))
-            .map_or([1.0; 4], |m| m.base_color_factor);
-        let c = prim
-            .colors
-            .as_ref()
-            .and_then(|c| c.get(v).copied())
-            .unwrap_or([1.0; 4]);
-        let own = std::array::from_fn(|k| factor[k] * c[k]);
-        mix(own, relaid, self.weight)
+        mix(
+            vertex_base_color(self.sampler.asset(), primitive, v),
+            relaid,
+            self.weight,
+        )
     }
+}
+
+/// The base colour of vertex `v` of a primitive without UVs: the material factor times its
+/// COLOR_0 (white without).
+pub(super) fn vertex_base_color(asset: &Asset, primitive: usize, v: usize) -> [f32; 4] {
+    let prim = &asset.primitives[primitive];
+    let factor = prim
+        .material
+        .and_then(|m| asset.materials.get(m))
+        .map_or([1.0; 4], |m| m.base_color_factor);
+    let c = prim
+        .colors
+        .as_ref()
+        .and_then(|c| c.get(v).copied())
+        .unwrap_or([1.0; 4]);
+    std::array::from_fn(|k| factor[k] * c[k])
 }

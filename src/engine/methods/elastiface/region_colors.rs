@@ -12,6 +12,7 @@
 use crate::engine::asset::edits::{AttributeData, Edit};
 use crate::engine::control::Control;
 
+use super::blend::vertex_base_color;
 use super::poisson::MeshPoisson;
 use super::texture::{has_uvs, RelaidColor};
 use super::MethodError;
@@ -47,19 +48,7 @@ pub fn region_vertex_colors(
         .collect();
     let mut own_sum = vec![[0.0f64; 4]; n];
     let mut own_count = vec![0u32; n];
-    let own = |p: usize, v: usize| -> [f32; 4] {
-        let prim = &source.primitives[p];
-        let factor = prim
-            .material
-            .and_then(|m| source.materials.get(m))
-            .map_or([1.0; 4], |m| m.base_color_factor);
-        let c = prim
-            .colors
-            .as_ref()
-            .and_then(|c| c.get(v).copied())
-            .unwrap_or([1.0; 4]);
-        std::array::from_fn(|k| factor[k] * c[k])
-    };
+    let own = |p: usize, v: usize| vertex_base_color(source, p, v);
     for &p in &prims {
         for (v, &w) in field.welded[p].iter().enumerate() {
             if w != u32::MAX {
