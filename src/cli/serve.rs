@@ -105,6 +105,10 @@ pub struct ServeArgs {
     /// [env RETEX_LEASE_SECS; default 30].
     #[arg(long)]
     pub lease_secs: Option<u64>,
+    /// Seconds between an idle worker's looks for jobs when no notification wakes it
+    /// [env RETEX_POLL_SECS; default 1].
+    #[arg(long)]
+    pub poll_secs: Option<u64>,
 }
 
 /// What [`config`] decided besides the settings: where `data_dir` came from (for the error when
@@ -165,7 +169,8 @@ pub fn config(args: &ServeArgs) -> Result<(ServeConfig, Origins), String> {
         max_part_bytes,
         max_texture_size,
         role,
-        lease_secs
+        lease_secs,
+        poll_secs
     );
     if let Some(url) = &args.database_url {
         c.database_url = Some(url.clone());

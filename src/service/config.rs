@@ -117,6 +117,11 @@ pub struct ServeConfig {
     /// replica dies, its jobs run again elsewhere this long later. Default 30
     /// (env `RETEX_LEASE_SECS`).
     pub lease_secs: u64,
+    /// Seconds between an idle worker's looks for enqueued jobs when nothing wakes it: a job
+    /// submitted to this process, or (PostgreSQL) a change notification from another replica
+    /// (`LISTEN`/`NOTIFY`), wakes it at once; the look also reclaims expired leases. Default 1
+    /// (env `RETEX_POLL_SECS`).
+    pub poll_secs: u64,
     /// `RETEX_TOKENS` was set but names no token (empty or blank): a server meant to need
     /// tokens would start open. [`ServeConfig::validate`] refuses that unless the address is
     /// loopback.
@@ -157,6 +162,7 @@ impl Default for ServeConfig {
             database_url: None,
             role: Role::All,
             lease_secs: 30,
+            poll_secs: 1,
             tokens_blank: false,
         }
     }
@@ -340,6 +346,9 @@ impl ServeConfig {
         if let Some(v) = get("RETEX_LEASE_SECS") {
             self.lease_secs = parse("RETEX_LEASE_SECS", &v)?;
         }
+        if let Some(v) = get("RETEX_POLL_SECS") {
+            self.poll_secs = parse("RETEX_POLL_SECS", &v)?;
+        }
         if let Some(v) = get("RETEX_LOG_JSON") {
             self.log_json = matches!(v.trim(), "1" | "true" | "yes");
         }
@@ -412,6 +421,9 @@ impl ServeConfig {
         if !(3..=3600).contains(&self.lease_secs) {
             return bad("lease_secs", "must be within 3..=3600");
         }
+        if !(1..=3600).contains(&self.poll_secs) {
+            return bad("poll_secs", "must be within 1..=3600");
+        }
         if self.prune_interval_secs == 0 || self.progress_interval_ms == 0 {
             return bad("prune_interval_secs", "intervals must be positive");
         }
@@ -482,12 +494,17 @@ mod tests {
         let env: HashMap<&str, &str> = [
             ("RETEX_DATABASE_URL", "postgres://retex@db/retex"),
             ("RETEX_ROLE", "worker"),
+            ("RETEX_POLL_SECS", "60"),
         ]
         .into();
         c.apply_env(|k| env.get(k).map(|v| v.to_string())).unwrap();
         assert_eq!(c.database_url.as_deref(), Some("postgres://retex@db/retex"));
+        assert_eq!(c.poll_secs, 60);
         assert!(!c.role.runs_jobs() || c.role == Role::Worker);
         c.validate().unwrap();
+        let mut never = c.clone();
+        never.poll_secs = 0;
+        assert!(never.validate().is_err(), "poll_secs 0 would spin");
         assert!(c
             .apply_env(|k| (k == "RETEX_ROLE").then(|| "boss".to_string()))
             .is_err());

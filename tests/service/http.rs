@@ -5,7 +5,6 @@
 
 use crate::common;
 
-use std::io::{BufRead, BufReader};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
@@ -104,41 +103,6 @@ fn spot_glb_submit_poll_download_validate() {
     );
     get(&format!("{}/v1/jobs/{id}", s.base)).problem(404);
     assert!(!s.data.path().join(format!("blobs/jobs/{id}")).exists());
-}
-
-/// Reads SSE events until a `done` event: (event name, id, data) triples.
-fn read_events(url: &str, last_event_id: Option<&str>) -> Vec<(String, u64, serde_json::Value)> {
-    let a = agent();
-    let mut req = a.get(url).header("Accept", "text/event-stream");
-    if let Some(l) = last_event_id {
-        req = req.header("Last-Event-ID", l);
-    }
-    let mut resp = req.call().unwrap();
-    assert_eq!(resp.status().as_u16(), 200);
-    let reader = BufReader::new(resp.body_mut().as_reader());
-    let (mut events, mut name, mut id, mut data) = (Vec::new(), String::new(), 0u64, String::new());
-    for line in reader.lines() {
-        let line = line.unwrap();
-        if line.is_empty() {
-            if !data.is_empty() {
-                let v: serde_json::Value = serde_json::from_str(&data).unwrap();
-                events.push((name.clone(), id, v));
-                if name == "done" {
-                    break;
-                }
-            }
-            data.clear();
-            continue;
-        }
-        if let Some(v) = line.strip_prefix("event:") {
-            name = v.trim().to_string();
-        } else if let Some(v) = line.strip_prefix("id:") {
-            id = v.trim().parse().unwrap();
-        } else if let Some(v) = line.strip_prefix("data:") {
-            data.push_str(v.trim());
-        }
-    }
-    events
 }
 
 #[test]

@@ -122,6 +122,10 @@ fn example_config_loads_with_the_real_loader() {
     assert_eq!(c.data_dir, PathBuf::from("/var/lib/retex"));
     assert_eq!(c.ttl_secs, 7 * 24 * 3600);
     assert_eq!(c.db_path(), PathBuf::from("/var/lib/retex/jobs.sqlite3"));
+    assert_eq!(
+        (c.lease_secs, c.poll_secs, c.database_url.as_deref()),
+        (30, 1, None)
+    );
     // The compose file and the k8s deployment pass the same settings through the environment.
     let compose = std::fs::read_to_string(root().join("deploy/compose.yaml")).unwrap();
     let deployment = std::fs::read_to_string(root().join("deploy/k8s/deployment.yaml")).unwrap();

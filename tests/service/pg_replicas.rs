@@ -9,9 +9,7 @@
 //! All need the throw-away server of `pg_server` (ignored by default; CI runs them).
 
 use std::collections::HashSet;
-use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -35,7 +33,7 @@ fn secs(s: i64) -> chrono::Duration {
     chrono::Duration::seconds(s)
 }
 
-fn job(created_at: DateTime<Utc>) -> JobRecord {
+pub(crate) fn job(created_at: DateTime<Utc>) -> JobRecord {
     JobRecord {
         id: Uuid::now_v7(),
         status: JobStatus::Enqueued,
@@ -298,50 +296,21 @@ fn idempotency_keys_are_shared_and_migrations_run_once() {
     assert_eq!(created, 1, "one job for one key across replicas");
 }
 
-/// Kills the child when the test ends.
-struct Guard(Child);
-
-impl Drop for Guard {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
+fn spawn_replica(data: &Path, url: &str) -> (ServeProcess, String) {
+    spawn_role(data, url, "all", &[])
 }
 
-fn spawn_replica(data: &Path, url: &str) -> (Guard, String) {
-    spawn_role(data, url, "all")
-}
-
-fn spawn_role(data: &Path, url: &str, role: &str) -> (Guard, String) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_retex"))
-        .args([
-            "serve",
-            "--addr",
-            "127.0.0.1:0",
-            "--workers",
-            "1",
-            "--role",
-            role,
-        ])
-        .args(["--shutdown-secs", "5", "--memory-bytes", "0"])
-        .arg("--data-dir")
-        .arg(data)
-        .args(["--database-url", url])
-        .env("RETEX_LOG", "warn")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("start retex serve");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let addr = line
-        .trim()
-        .strip_prefix("retex listening on ")
-        .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
-        .to_string();
-    (Guard(child), addr)
+/// One replica of `role` on the database `url` and the shared data directory, plus `extra` flags.
+pub(crate) fn spawn_role(
+    data: &Path,
+    url: &str,
+    role: &str,
+    extra: &[&str],
+) -> (ServeProcess, String) {
+    let mut args = vec!["--workers", "1", "--role", role, "--database-url", url];
+    args.extend(["--shutdown-secs", "5", "--memory-bytes", "0"]);
+    args.extend(extra);
+    spawn_serve(data, &args, "warn")
 }
 
 #[test]
@@ -390,8 +359,8 @@ fn two_serve_processes_on_one_database_run_ten_jobs_once_each() {
 fn a_cancel_sent_to_the_api_replica_stops_the_job_on_the_worker() {
     let url = fresh_url();
     let data = tempfile::tempdir().unwrap();
-    let (_api, api) = spawn_role(data.path(), &url, "api");
-    let (_worker, worker) = spawn_role(data.path(), &url, "worker");
+    let (_api, api) = spawn_role(data.path(), &url, "api", &[]);
+    let (_worker, worker) = spawn_role(data.path(), &url, "worker", &[]);
     // The worker serves no job routes.
     assert_eq!(get(&format!("{worker}/v1/jobs")).status, 404);
     // Spot at 8192² runs for seconds: long enough to cancel mid-job.

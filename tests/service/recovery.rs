@@ -6,51 +6,15 @@
 
 use crate::common;
 
-use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use crate::service_common::*;
 
 /// Kills the child when a test fails, so no server outlives it.
-struct Guard(Child);
-
-impl Drop for Guard {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 /// Starts `retex serve` on port 0 and returns the child and its base URL.
-fn spawn_server(data: &Path) -> (Guard, String) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_retex"))
-        .args([
-            "serve",
-            "--addr",
-            "127.0.0.1:0",
-            "--workers",
-            "1",
-            "--shutdown-secs",
-            "10",
-        ])
-        .arg("--data-dir")
-        .arg(data)
-        .env("RETEX_LOG", "warn")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("start retex serve");
-    let stdout = child.stdout.take().unwrap();
-    let mut line = String::new();
-    BufReader::new(stdout).read_line(&mut line).unwrap();
-    let addr = line
-        .trim()
-        .strip_prefix("retex listening on ")
-        .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
-        .to_string();
-    (Guard(child), addr)
+fn spawn_server(data: &Path) -> (ServeProcess, String) {
+    spawn_serve(data, &["--workers", "1", "--shutdown-secs", "10"], "warn")
 }
 
 #[test]

@@ -3,6 +3,7 @@
 //! way curl sends them, and polling helpers.
 #![allow(dead_code)]
 
+use std::io::BufRead;
 use std::path::Path;
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
@@ -320,4 +321,77 @@ impl Drop for TestServer {
             let _ = t.join();
         }
     }
+}
+
+/// Reads SSE events until a `done` event: (event name, id, data) triples.
+pub fn read_events(
+    url: &str,
+    last_event_id: Option<&str>,
+) -> Vec<(String, u64, serde_json::Value)> {
+    let a = agent();
+    let mut req = a.get(url).header("Accept", "text/event-stream");
+    if let Some(l) = last_event_id {
+        req = req.header("Last-Event-ID", l);
+    }
+    let mut resp = req.call().unwrap();
+    assert_eq!(resp.status().as_u16(), 200);
+    let reader = std::io::BufReader::new(resp.body_mut().as_reader());
+    let (mut events, mut name, mut id, mut data) = (Vec::new(), String::new(), 0u64, String::new());
+    for line in reader.lines() {
+        let line = line.unwrap();
+        if line.is_empty() {
+            if !data.is_empty() {
+                let v: serde_json::Value = serde_json::from_str(&data).unwrap();
+                events.push((name.clone(), id, v));
+                if name == "done" {
+                    break;
+                }
+            }
+            data.clear();
+            continue;
+        }
+        if let Some(v) = line.strip_prefix("event:") {
+            name = v.trim().to_string();
+        } else if let Some(v) = line.strip_prefix("id:") {
+            id = v.trim().parse().unwrap();
+        } else if let Some(v) = line.strip_prefix("data:") {
+            data.push_str(v.trim());
+        }
+    }
+    events
+}
+
+/// A `retex serve` child process, killed (SIGKILL) and reaped when dropped.
+pub struct ServeProcess(pub std::process::Child);
+
+impl Drop for ServeProcess {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Starts the release binary as `retex serve --addr 127.0.0.1:0 --data-dir DATA ARGS…` with
+/// `RETEX_LOG=log` and returns it with its base URL (read from its first stdout line).
+pub fn spawn_serve(data: &Path, args: &[&str], log: &str) -> (ServeProcess, String) {
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_retex"))
+        .args(["serve", "--addr", "127.0.0.1:0"])
+        .arg("--data-dir")
+        .arg(data)
+        .args(args)
+        .env("RETEX_LOG", log)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::inherit())
+        .spawn()
+        .expect("start retex serve");
+    let mut line = String::new();
+    std::io::BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let base = line
+        .trim()
+        .strip_prefix("retex listening on ")
+        .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
+        .to_string();
+    (ServeProcess(child), base)
 }

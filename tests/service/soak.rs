@@ -12,9 +12,7 @@
 //! Ignored by default (about a minute); `.ci/run` runs it with `--include-ignored`.
 
 use std::collections::{HashMap, HashSet};
-use std::io::{BufRead, BufReader};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use retex::engine::rng::SplitMix64;
@@ -30,36 +28,16 @@ const LAST_RUN: usize = 200;
 /// Jobs of the last process before its memory is first read (warm-up).
 const WARM_UP: usize = 50;
 
-struct Server(Child);
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn spawn(data: &Path) -> (Server, String) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_retex"))
-        .args(["serve", "--addr", "127.0.0.1:0", "--workers", "2"])
-        .args(["--queue-len", "1000", "--shutdown-secs", "20"])
-        .arg("--data-dir")
-        .arg(data)
-        .env("RETEX_LOG", "error")
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("start retex serve");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let base = line
-        .trim()
-        .strip_prefix("retex listening on ")
-        .unwrap_or_else(|| panic!("unexpected first line {line:?}"))
-        .to_string();
-    (Server(child), base)
+fn spawn(data: &Path) -> (ServeProcess, String) {
+    let args = [
+        "--workers",
+        "2",
+        "--queue-len",
+        "1000",
+        "--shutdown-secs",
+        "20",
+    ];
+    spawn_serve(data, &args, "error")
 }
 
 /// Resident memory of a process, KiB.

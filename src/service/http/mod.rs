@@ -236,6 +236,7 @@ pub async fn start_with_stores(
             registry: registry.clone(),
             storage_retry: Duration::from_secs(config.storage_retry_secs),
             claim: config.role.runs_jobs(),
+            poll: Duration::from_secs(config.poll_secs),
         },
         jobs.clone(),
         blobs.clone(),

@@ -33,8 +33,13 @@
 //! task renews the lease every third of the lease time (at most every second) with
 //! [`JobStore::heartbeat`], which also brings a cancel sent through another replica (handled as
 //! a local cancel); a lost lease (another replica reclaimed the job) stops the engine and
-//! records nothing. Every dispatcher tick re-enqueues jobs whose lease expired
-//! ([`JobStore::reclaim_expired`]). With [`RunnerConfig::claim`] off (role `api`) the runner
+//! records nothing. Every dispatcher tick ([`RunnerConfig::poll`]) re-enqueues jobs whose lease
+//! expired ([`JobStore::reclaim_expired`]). A store with a change feed
+//! ([`JobStore::watch_changes`], PostgreSQL's `LISTEN`/`NOTIFY`) tells the runner what other
+//! replicas commit: a job enqueued through another replica wakes an idle worker at once (the
+//! tick stays as the fallback), a cancel reaches the running job without waiting for the next
+//! heartbeat, and the status and stored progress of jobs running elsewhere reach this
+//! process's event streams, so any replica serves SSE for any job. With [`RunnerConfig::claim`] off (role `api`) the runner
 //! claims nothing and runs no recovery: it only relays events and cancels.
 
 use std::cell::Cell;
@@ -65,12 +70,10 @@ use crate::service::problem_table::{
     constraints_problem, internal_problem, panic_problem, result_not_stored_problem,
     texture_size_problem, transfer_problem,
 };
-use crate::service::store::{BlobStore, Finish, JobStore, Lease, StoreError};
+use crate::service::store::{BlobStore, Finish, JobChange, JobStore, Lease, StoreError};
 
 /// Store writes of progress are at most this frequent per job.
 pub const DB_PROGRESS_INTERVAL: Duration = Duration::from_millis(500);
-/// The dispatcher looks for work at least this often even without [`Runner::notify`].
-const DISPATCH_TICK: Duration = Duration::from_secs(1);
 /// How long a cancel for a job that is not running (yet) is remembered.
 const EARLY_CANCEL_TTL: Duration = Duration::from_secs(30);
 /// After the shutdown deadline, how long cancelled jobs get to stop.
@@ -123,6 +126,9 @@ pub struct RunnerConfig {
     pub storage_retry: Duration,
     /// Claim and run jobs (roles `worker` and `all`); off for role `api`. Default: on.
     pub claim: bool,
+    /// The dispatcher looks for work (and reclaims expired leases) at least this often even
+    /// when nothing wakes it. Default: 1 s.
+    pub poll: Duration,
 }
 
 impl Default for RunnerConfig {
@@ -136,6 +142,7 @@ impl Default for RunnerConfig {
             registry: Registry::builtin(),
             storage_retry: Duration::from_secs(30),
             claim: true,
+            poll: Duration::from_secs(1),
         }
     }
 }
@@ -292,6 +299,15 @@ impl Runner {
             storage_failed: Mutex::new(None),
             probed: Mutex::new(None),
         });
+        let weak = Arc::downgrade(&runner);
+        let watched = runner.jobs.watch_changes(Box::new(move |change| {
+            if let Some(r) = weak.upgrade() {
+                r.on_remote_change(change);
+            }
+        }));
+        if watched {
+            tracing::info!("listening for job changes from other replicas");
+        }
         let me = Arc::clone(&runner);
         let task = handle.spawn(async move { me.dispatch().await });
         *locked(&runner.dispatcher) = Some(task);
@@ -423,6 +439,24 @@ impl Runner {
         );
     }
 
+    /// A change another replica committed ([`JobStore::watch_changes`]): an enqueued job wakes
+    /// the dispatcher, a cancel request for a job running here cancels it as a client's
+    /// would, and a job not running here has its change relayed to this process's event
+    /// streams (a job running here already sends finer-grained events of its own).
+    fn on_remote_change(&self, change: JobChange) {
+        let here = locked(&self.running).contains_key(&change.id);
+        if here && change.cancel_requested {
+            tracing::info!(id = %change.id, "cancel requested through another replica");
+            self.cancel(change.id);
+        }
+        if change.status == JobStatus::Enqueued && self.config.claim {
+            self.wake.notify_one();
+        }
+        if !here {
+            self.emit(change.id, change.status, change.progress, change.revision);
+        }
+    }
+
     fn emit(&self, id: Uuid, status: JobStatus, progress: JobProgress, revision: u64) {
         // No subscriber is not an error.
         let _ = self.events.send(JobEvent {
@@ -441,7 +475,7 @@ impl Runner {
         let leased = self.jobs.lease_duration().is_some();
         let mut last_reclaim: Option<Instant> = None;
         loop {
-            if leased && last_reclaim.is_none_or(|t| t.elapsed() >= DISPATCH_TICK) {
+            if leased && last_reclaim.is_none_or(|t| t.elapsed() >= self.config.poll) {
                 last_reclaim = Some(Instant::now());
                 let (jobs, max) = (Arc::clone(&self.jobs), self.config.max_attempts);
                 match tokio::task::spawn_blocking(move || jobs.reclaim_expired(max, Utc::now()))
@@ -478,7 +512,7 @@ impl Runner {
             }
             tokio::select! {
                 _ = self.wake.notified() => {}
-                _ = tokio::time::sleep(DISPATCH_TICK) => {}
+                _ = tokio::time::sleep(self.config.poll) => {}
             }
         }
     }

@@ -311,7 +311,35 @@ pub trait JobStore: Send + Sync + 'static {
     ) -> Result<Recovery, StoreError> {
         Ok(Recovery::default())
     }
+    /// Asks the store to call `sink` with every change that *another* store handle (another
+    /// replica) commits to a job, soon after its commit: a job enqueued, claimed, its stored
+    /// progress, its end, a cancel request. Returns false (the default) when the store has no
+    /// such feed: then only this process writes, and the runner already knows every change.
+    /// Best effort: a change may be missed (e.g. while the feed reconnects); callers keep
+    /// polling as the fallback.
+    fn watch_changes(&self, _sink: ChangeSink) -> bool {
+        false
+    }
 }
+
+/// A change to a job committed by another replica (see [`JobStore::watch_changes`]).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct JobChange {
+    /// The job.
+    pub id: Uuid,
+    /// Its status after the change.
+    pub status: JobStatus,
+    /// Its stored revision after the change.
+    pub revision: u64,
+    /// Its stored progress after the change.
+    pub progress: JobProgress,
+    /// A client asked (through any replica) to cancel the processing job.
+    #[serde(default)]
+    pub cancel_requested: bool,
+}
+
+/// Receiver of [`JobChange`]s; called on a store thread, so it must not block.
+pub type ChangeSink = Box<dyn Fn(JobChange) + Send + Sync>;
 
 /// Key of the blob [`BlobStore::probe`] rewrites (outside `jobs/`, so no job owns it).
 pub const PROBE_KEY: &str = "health/probe";

@@ -25,6 +25,12 @@
 //!   the idempotency-key lookup are serialized across replicas as SQLite's single writer is.
 //! - Migrations run at open under a session advisory lock, so replicas starting together
 //!   create the schema once.
+//! - Every write of a job also sends `pg_notify` on the channel `retex_jobs` in the same
+//!   transaction (with the writer's owner id, so a handle skips its own), and
+//!   [`JobStore::watch_changes`] keeps one extra connection `LISTEN`ing on it (`postgres_listen.rs`):
+//!   idle workers wake when another replica enqueues, a cancel reaches the running job at once,
+//!   and every replica's event streams follow jobs that run elsewhere. Progress reaches the
+//!   store (and so the feed) at most every 500 ms per job (the runner's bounded rate).
 //!
 //! Client: `tokio-postgres` pooled by `deadpool-postgres`, driven on a small tokio runtime that
 //! the store owns (two threads). The trait is synchronous: each method spawns its query onto
@@ -42,7 +48,7 @@ use std::time::Duration;
 use chrono::{DateTime, Utc};
 use deadpool_postgres::{Manager, ManagerConfig, Pool, RecyclingMethod};
 use tokio_postgres::types::ToSql;
-use tokio_postgres::{GenericClient, NoTls};
+use tokio_postgres::{GenericClient, NoTls, Transaction};
 use uuid::Uuid;
 
 use super::sqlite::{
@@ -50,10 +56,16 @@ use super::sqlite::{
     MAX_PAGE,
 };
 use super::{
-    CreateOutcome, Finish, JobStore, Lease, ListFilter, ListPage, Recovery, StatusCounts,
-    StoreError,
+    ChangeSink, CreateOutcome, Finish, JobStore, Lease, ListFilter, ListPage, Recovery,
+    StatusCounts, StoreError,
 };
 use crate::service::model::{JobProgress, JobRecord, JobStatus};
+
+#[path = "postgres_listen.rs"]
+mod listen;
+
+/// What a [`PgJobStore::write`] closure returns: its transaction's work.
+type TxFuture<'t, T> = std::pin::Pin<Box<dyn Future<Output = Result<T, StoreError>> + Send + 't>>;
 
 /// Schema version this code writes.
 const SCHEMA_VERSION: i32 = 1;
@@ -130,6 +142,8 @@ fn json_error(e: serde_json::Error) -> StoreError {
 /// PostgreSQL-backed [`JobStore`]; one per replica (each has its own lease owner id).
 pub struct PgJobStore {
     runtime: Option<tokio::runtime::Runtime>,
+    /// The connection settings (the change feed opens its own connection with them).
+    config: tokio_postgres::Config,
     pool: Pool,
     owner: String,
     lease: Duration,
@@ -173,7 +187,7 @@ impl PgJobStore {
             .enable_all()
             .build()?;
         let manager = Manager::from_config(
-            config,
+            config.clone(),
             NoTls,
             ManagerConfig {
                 recycling_method: RecyclingMethod::Fast,
@@ -191,6 +205,7 @@ impl PgJobStore {
         };
         let store = Self {
             runtime: Some(runtime),
+            config,
             pool,
             owner: Uuid::new_v4().to_string(),
             lease: lease.max(Duration::from_secs(1)),
@@ -219,6 +234,23 @@ impl PgJobStore {
             .map_err(|_| StoreError::Database("the database task was lost".into()))?
     }
 
+    /// Runs `f` in one transaction on a pooled connection and commits it when `f` succeeds (an
+    /// error rolls it back), on the store's runtime.
+    fn write<T, F>(&self, f: F) -> Result<T, StoreError>
+    where
+        T: Send + 'static,
+        F: for<'t> FnOnce(&'t Transaction<'t>) -> TxFuture<'t, T> + Send + 'static,
+    {
+        let pool = self.pool.clone();
+        self.block(async move {
+            let mut c = pool.get().await.map_err(pool_error)?;
+            let tx = c.transaction().await.map_err(db_error)?;
+            let out = f(&tx).await?;
+            tx.commit().await.map_err(db_error)?;
+            Ok(out)
+        })
+    }
+
     fn lease_until(&self, now: DateTime<Utc>) -> i64 {
         let lease = chrono::Duration::from_std(self.lease).unwrap_or(chrono::Duration::MAX);
         nanos(now.checked_add_signed(lease).unwrap_or(now))
@@ -231,41 +263,39 @@ impl PgJobStore {
         now: DateTime<Utc>,
         expired_only: bool,
     ) -> Result<Recovery, StoreError> {
-        let pool = self.pool.clone();
         let owner = self.owner.clone();
-        self.block(async move {
-            let mut c = pool.get().await.map_err(pool_error)?;
-            let tx = c.transaction().await.map_err(db_error)?;
-            // Owner "" matches no handle: only expired leases.
-            let owner = if expired_only { String::new() } else { owner };
-            let rows = tx
-                .query(
-                    "SELECT record FROM jobs WHERE status = 'processing'
+        self.write(move |tx| {
+            Box::pin(async move {
+                // Owner "" matches no handle: only expired leases.
+                let selected = if expired_only { "" } else { owner.as_str() };
+                let rows = tx
+                    .query(
+                        "SELECT record FROM jobs WHERE status = 'processing'
                      AND (lease_until IS NULL OR lease_until < $1 OR lease_owner = $2)
                      ORDER BY created_at, id FOR UPDATE SKIP LOCKED",
-                    &[&nanos(now), &owner],
-                )
-                .await
-                .map_err(db_error)?;
-            let mut out = Recovery::default();
-            for row in rows {
-                let mut job: JobRecord =
-                    serde_json::from_str(row.get::<_, &str>(0)).map_err(json_error)?;
-                if job.attempts >= max_attempts {
-                    job.status = JobStatus::Failed;
-                    job.finished_at = Some(now);
-                    job.error = Some(too_many_attempts(job.attempts, max_attempts));
-                    out.failed.push(job.id);
-                } else {
-                    job.status = JobStatus::Enqueued;
-                    job.progress = JobProgress::default();
-                    out.requeued.push(job.id);
+                        &[&nanos(now), &selected],
+                    )
+                    .await
+                    .map_err(db_error)?;
+                let mut out = Recovery::default();
+                for row in rows {
+                    let mut job: JobRecord =
+                        serde_json::from_str(row.get::<_, &str>(0)).map_err(json_error)?;
+                    if job.attempts >= max_attempts {
+                        job.status = JobStatus::Failed;
+                        job.finished_at = Some(now);
+                        job.error = Some(too_many_attempts(job.attempts, max_attempts));
+                        out.failed.push(job.id);
+                    } else {
+                        job.status = JobStatus::Enqueued;
+                        job.progress = JobProgress::default();
+                        out.requeued.push(job.id);
+                    }
+                    job.revision += 1;
+                    update_record(tx, &job, &owner).await?;
                 }
-                job.revision += 1;
-                update_record(&*tx, &job).await?;
-            }
-            tx.commit().await.map_err(db_error)?;
-            Ok(out)
+                Ok(out)
+            })
         })
     }
 }
@@ -331,7 +361,12 @@ async fn load<C: GenericClient + Sync>(
     .transpose()
 }
 
-async fn insert_record<C: GenericClient + Sync>(c: &C, job: &JobRecord) -> Result<(), StoreError> {
+/// Inserts a new job and announces it to the other replicas ([`notify`]) as `origin`.
+async fn insert_record<C: GenericClient + Sync>(
+    c: &C,
+    job: &JobRecord,
+    origin: &str,
+) -> Result<(), StoreError> {
     let json = serde_json::to_string(job).map_err(json_error)?;
     c.execute(
         "INSERT INTO jobs (id, status, method, created_at, finished_at, idempotency_key, request_hash, revision, record)
@@ -350,11 +385,16 @@ async fn insert_record<C: GenericClient + Sync>(c: &C, job: &JobRecord) -> Resul
     )
     .await
     .map_err(db_error)?;
-    Ok(())
+    notify(c, job, origin, false).await
 }
 
 /// Writes back a changed record; a job leaving `processing` drops its lease and cancel flag.
-async fn update_record<C: GenericClient + Sync>(c: &C, job: &JobRecord) -> Result<(), StoreError> {
+/// The change is announced to the other replicas ([`notify`]) as `origin`.
+async fn update_record<C: GenericClient + Sync>(
+    c: &C,
+    job: &JobRecord,
+    origin: &str,
+) -> Result<(), StoreError> {
     let json = serde_json::to_string(job).map_err(json_error)?;
     c.execute(
         "UPDATE jobs SET status = $2, finished_at = $3, revision = $4, record = $5,
@@ -372,6 +412,21 @@ async fn update_record<C: GenericClient + Sync>(c: &C, job: &JobRecord) -> Resul
     )
     .await
     .map_err(db_error)?;
+    notify(c, job, origin, false).await
+}
+
+/// Sends the change of `job` on [`listen::CHANNEL`] (delivered when the transaction commits;
+/// PostgreSQL drops the notifications of a rolled-back one).
+async fn notify<C: GenericClient + Sync>(
+    c: &C,
+    job: &JobRecord,
+    origin: &str,
+    cancel_requested: bool,
+) -> Result<(), StoreError> {
+    let payload = listen::payload(job, origin, cancel_requested);
+    c.execute("SELECT pg_notify($1, $2)", &[&listen::CHANNEL, &payload])
+        .await
+        .map_err(db_error)?;
     Ok(())
 }
 
@@ -386,11 +441,9 @@ fn holds(holder: &Option<String>, owner: &str) -> bool {
 
 impl JobStore for PgJobStore {
     fn create_bounded(&self, job: &JobRecord, queue_len: u64) -> Result<CreateOutcome, StoreError> {
-        let pool = self.pool.clone();
         let job = job.clone();
-        self.block(async move {
-            let mut c = pool.get().await.map_err(pool_error)?;
-            let tx = c.transaction().await.map_err(db_error)?;
+        let owner = self.owner.clone();
+        self.write(move |tx| Box::pin(async move {
             tx.execute("SELECT pg_advisory_xact_lock($1)", &[&CREATE_LOCK])
                 .await
                 .map_err(db_error)?;
@@ -442,10 +495,9 @@ impl JobStore for PgJobStore {
                 .await
                 .map_err(db_error)?;
             }
-            insert_record(&*tx, &job).await?;
-            tx.commit().await.map_err(db_error)?;
+            insert_record(tx, &job, &owner).await?;
             Ok(CreateOutcome::Created)
-        })
+        }))
     }
 
     fn job_of_key(&self, key: &str) -> Result<Option<Uuid>, StoreError> {
@@ -535,61 +587,58 @@ impl JobStore for PgJobStore {
     }
 
     fn claim_next(&self, now: DateTime<Utc>) -> Result<Option<JobRecord>, StoreError> {
-        let pool = self.pool.clone();
         let owner = self.owner.clone();
         let until = self.lease_until(now);
-        self.block(async move {
-            let mut c = pool.get().await.map_err(pool_error)?;
-            let tx = c.transaction().await.map_err(db_error)?;
-            let row = tx
-                .query_opt(
-                    "SELECT record FROM jobs WHERE status = 'enqueued' ORDER BY created_at, id
+        self.write(move |tx| {
+            Box::pin(async move {
+                let row = tx
+                    .query_opt(
+                        "SELECT record FROM jobs WHERE status = 'enqueued' ORDER BY created_at, id
                      LIMIT 1 FOR UPDATE SKIP LOCKED",
-                    &[],
+                        &[],
+                    )
+                    .await
+                    .map_err(db_error)?;
+                let Some(row) = row else { return Ok(None) };
+                let mut job: JobRecord =
+                    serde_json::from_str(row.get::<_, &str>(0)).map_err(json_error)?;
+                job.status = JobStatus::Processing;
+                job.started_at = Some(now);
+                job.attempts += 1;
+                job.progress = JobProgress::default();
+                job.revision += 1;
+                update_record(tx, &job, &owner).await?;
+                tx.execute(
+                    "UPDATE jobs SET lease_owner = $2, lease_until = $3, cancel_requested = FALSE
+                 WHERE id = $1",
+                    &[&job.id.to_string(), &owner, &until],
                 )
                 .await
                 .map_err(db_error)?;
-            let Some(row) = row else { return Ok(None) };
-            let mut job: JobRecord =
-                serde_json::from_str(row.get::<_, &str>(0)).map_err(json_error)?;
-            job.status = JobStatus::Processing;
-            job.started_at = Some(now);
-            job.attempts += 1;
-            job.progress = JobProgress::default();
-            job.revision += 1;
-            update_record(&*tx, &job).await?;
-            tx.execute(
-                "UPDATE jobs SET lease_owner = $2, lease_until = $3, cancel_requested = FALSE
-                 WHERE id = $1",
-                &[&job.id.to_string(), &owner, &until],
-            )
-            .await
-            .map_err(db_error)?;
-            tx.commit().await.map_err(db_error)?;
-            Ok(Some(job))
+                Ok(Some(job))
+            })
         })
     }
 
     fn update_progress(&self, id: Uuid, progress: &JobProgress) -> Result<(), StoreError> {
-        let pool = self.pool.clone();
         let owner = self.owner.clone();
         let progress = progress.clone();
-        self.block(async move {
-            let mut c = pool.get().await.map_err(pool_error)?;
-            let tx = c.transaction().await.map_err(db_error)?;
-            let (mut job, holder) = load(&*tx, id, true)
-                .await?
-                .ok_or(StoreError::NotFound(id))?;
-            if job.status != JobStatus::Processing
-                || job.progress == progress
-                || !holds(&holder, &owner)
-            {
-                return Ok(());
-            }
-            job.progress = progress;
-            job.revision += 1;
-            update_record(&*tx, &job).await?;
-            tx.commit().await.map_err(db_error)
+        self.write(move |tx| {
+            Box::pin(async move {
+                let (mut job, holder) = load(&*tx, id, true)
+                    .await?
+                    .ok_or(StoreError::NotFound(id))?;
+                if job.status != JobStatus::Processing
+                    || job.progress == progress
+                    || !holds(&holder, &owner)
+                {
+                    return Ok(());
+                }
+                job.progress = progress;
+                job.revision += 1;
+                update_record(tx, &job, &owner).await?;
+                Ok(())
+            })
         })
     }
 
@@ -599,55 +648,54 @@ impl JobStore for PgJobStore {
         outcome: Finish,
         now: DateTime<Utc>,
     ) -> Result<JobRecord, StoreError> {
-        let pool = self.pool.clone();
         let owner = self.owner.clone();
-        self.block(async move {
-            let mut c = pool.get().await.map_err(pool_error)?;
-            let tx = c.transaction().await.map_err(db_error)?;
-            let (mut job, holder) = load(&*tx, id, true)
-                .await?
-                .ok_or(StoreError::NotFound(id))?;
-            if job.status.is_terminal() {
-                return Err(conflict(&job, "finish a finished job"));
-            }
-            if job.status == JobStatus::Processing && !holds(&holder, &owner) {
-                return Err(conflict(&job, "finish a job leased by another replica"));
-            }
-            outcome.apply(&mut job, now);
-            update_record(&*tx, &job).await?;
-            tx.commit().await.map_err(db_error)?;
-            Ok(job)
+        self.write(move |tx| {
+            Box::pin(async move {
+                let (mut job, holder) = load(&*tx, id, true)
+                    .await?
+                    .ok_or(StoreError::NotFound(id))?;
+                if job.status.is_terminal() {
+                    return Err(conflict(&job, "finish a finished job"));
+                }
+                if job.status == JobStatus::Processing && !holds(&holder, &owner) {
+                    return Err(conflict(&job, "finish a job leased by another replica"));
+                }
+                outcome.apply(&mut job, now);
+                update_record(tx, &job, &owner).await?;
+                Ok(job)
+            })
         })
     }
 
     fn cancel_if_enqueued(&self, id: Uuid, now: DateTime<Utc>) -> Result<JobRecord, StoreError> {
-        let pool = self.pool.clone();
-        self.block(async move {
-            let mut c = pool.get().await.map_err(pool_error)?;
-            let tx = c.transaction().await.map_err(db_error)?;
-            let (mut job, _) = load(&*tx, id, true)
-                .await?
-                .ok_or(StoreError::NotFound(id))?;
-            match job.status {
-                JobStatus::Enqueued => {
-                    job.status = JobStatus::Canceled;
-                    job.finished_at = Some(now);
-                    job.revision += 1;
-                    update_record(&*tx, &job).await?;
+        let owner = self.owner.clone();
+        self.write(move |tx| {
+            Box::pin(async move {
+                let (mut job, _) = load(&*tx, id, true)
+                    .await?
+                    .ok_or(StoreError::NotFound(id))?;
+                match job.status {
+                    JobStatus::Enqueued => {
+                        job.status = JobStatus::Canceled;
+                        job.finished_at = Some(now);
+                        job.revision += 1;
+                        update_record(tx, &job, &owner).await?;
+                    }
+                    JobStatus::Processing => {
+                        // The lease holder hears of it through the change feed at once, or
+                        // sees the flag at its next heartbeat.
+                        tx.execute(
+                            "UPDATE jobs SET cancel_requested = TRUE WHERE id = $1",
+                            &[&id.to_string()],
+                        )
+                        .await
+                        .map_err(db_error)?;
+                        notify(tx, &job, &owner, true).await?;
+                    }
+                    _ => return Err(conflict(&job, "cancel a finished job")),
                 }
-                JobStatus::Processing => {
-                    // The lease holder sees the flag at its next heartbeat.
-                    tx.execute(
-                        "UPDATE jobs SET cancel_requested = TRUE WHERE id = $1",
-                        &[&id.to_string()],
-                    )
-                    .await
-                    .map_err(db_error)?;
-                }
-                _ => return Err(conflict(&job, "cancel a finished job")),
-            }
-            tx.commit().await.map_err(db_error)?;
-            Ok(job)
+                Ok(job)
+            })
         })
     }
 
@@ -660,48 +708,44 @@ impl JobStore for PgJobStore {
         ids: &[Uuid],
         _now: DateTime<Utc>,
     ) -> Result<Vec<JobRecord>, StoreError> {
-        let pool = self.pool.clone();
         let owner = self.owner.clone();
         let ids = ids.to_vec();
-        self.block(async move {
-            let mut c = pool.get().await.map_err(pool_error)?;
-            let tx = c.transaction().await.map_err(db_error)?;
-            let mut out = Vec::with_capacity(ids.len());
-            for id in ids {
-                let Some((mut job, holder)) = load(&*tx, id, true).await? else {
-                    continue;
-                };
-                if job.status != JobStatus::Processing || !holds(&holder, &owner) {
-                    continue;
+        self.write(move |tx| {
+            Box::pin(async move {
+                let mut out = Vec::with_capacity(ids.len());
+                for id in ids {
+                    let Some((mut job, holder)) = load(&*tx, id, true).await? else {
+                        continue;
+                    };
+                    if job.status != JobStatus::Processing || !holds(&holder, &owner) {
+                        continue;
+                    }
+                    job.status = JobStatus::Enqueued;
+                    job.progress = JobProgress::default();
+                    job.attempts = job.attempts.saturating_sub(1);
+                    job.revision += 1;
+                    update_record(tx, &job, &owner).await?;
+                    out.push(job);
                 }
-                job.status = JobStatus::Enqueued;
-                job.progress = JobProgress::default();
-                job.attempts = job.attempts.saturating_sub(1);
-                job.revision += 1;
-                update_record(&*tx, &job).await?;
-                out.push(job);
-            }
-            tx.commit().await.map_err(db_error)?;
-            Ok(out)
+                Ok(out)
+            })
         })
     }
 
     fn delete(&self, id: Uuid) -> Result<JobRecord, StoreError> {
-        let pool = self.pool.clone();
-        self.block(async move {
-            let mut c = pool.get().await.map_err(pool_error)?;
-            let tx = c.transaction().await.map_err(db_error)?;
-            let (job, _) = load(&*tx, id, true)
-                .await?
-                .ok_or(StoreError::NotFound(id))?;
-            if !job.status.is_terminal() {
-                return Err(conflict(&job, "delete an unfinished job"));
-            }
-            tx.execute("DELETE FROM jobs WHERE id = $1", &[&id.to_string()])
-                .await
-                .map_err(db_error)?;
-            tx.commit().await.map_err(db_error)?;
-            Ok(job)
+        self.write(move |tx| {
+            Box::pin(async move {
+                let (job, _) = load(&*tx, id, true)
+                    .await?
+                    .ok_or(StoreError::NotFound(id))?;
+                if !job.status.is_terminal() {
+                    return Err(conflict(&job, "delete an unfinished job"));
+                }
+                tx.execute("DELETE FROM jobs WHERE id = $1", &[&id.to_string()])
+                    .await
+                    .map_err(db_error)?;
+                Ok(job)
+            })
         })
     }
 
@@ -710,41 +754,40 @@ impl JobStore for PgJobStore {
         finished_before: DateTime<Utc>,
         keys_before: DateTime<Utc>,
     ) -> Result<Vec<JobRecord>, StoreError> {
-        let pool = self.pool.clone();
-        self.block(async move {
-            let mut c = pool.get().await.map_err(pool_error)?;
-            let tx = c.transaction().await.map_err(db_error)?;
-            let rows = tx
-                .query(
-                    "DELETE FROM jobs WHERE finished_at IS NOT NULL AND finished_at < $1
+        self.write(move |tx| {
+            Box::pin(async move {
+                let rows = tx
+                    .query(
+                        "DELETE FROM jobs WHERE finished_at IS NOT NULL AND finished_at < $1
                      AND status IN ('succeeded', 'failed', 'canceled') RETURNING record",
-                    &[&nanos(finished_before)],
+                        &[&nanos(finished_before)],
+                    )
+                    .await
+                    .map_err(db_error)?;
+                let mut removed = Vec::with_capacity(rows.len());
+                for r in rows {
+                    removed.push(
+                        serde_json::from_str::<JobRecord>(r.get::<_, &str>(0))
+                            .map_err(json_error)?,
+                    );
+                }
+                removed.sort_by_key(|j| (j.created_at, j.id));
+                let cutoff = nanos(keys_before);
+                tx.execute(
+                    "UPDATE jobs SET idempotency_key = NULL WHERE idempotency_key IN
+                 (SELECT key FROM idempotency_keys WHERE created_at < $1)",
+                    &[&cutoff],
                 )
                 .await
                 .map_err(db_error)?;
-            let mut removed = Vec::with_capacity(rows.len());
-            for r in rows {
-                removed.push(
-                    serde_json::from_str::<JobRecord>(r.get::<_, &str>(0)).map_err(json_error)?,
-                );
-            }
-            removed.sort_by_key(|j| (j.created_at, j.id));
-            let cutoff = nanos(keys_before);
-            tx.execute(
-                "UPDATE jobs SET idempotency_key = NULL WHERE idempotency_key IN
-                 (SELECT key FROM idempotency_keys WHERE created_at < $1)",
-                &[&cutoff],
-            )
-            .await
-            .map_err(db_error)?;
-            tx.execute(
-                "DELETE FROM idempotency_keys WHERE created_at < $1",
-                &[&cutoff],
-            )
-            .await
-            .map_err(db_error)?;
-            tx.commit().await.map_err(db_error)?;
-            Ok(removed)
+                tx.execute(
+                    "DELETE FROM idempotency_keys WHERE created_at < $1",
+                    &[&cutoff],
+                )
+                .await
+                .map_err(db_error)?;
+                Ok(removed)
+            })
         })
     }
 
@@ -813,5 +856,23 @@ impl JobStore for PgJobStore {
         now: DateTime<Utc>,
     ) -> Result<Recovery, StoreError> {
         self.requeue_processing(max_attempts, now, true)
+    }
+
+    /// Starts the change feed ([`listen`]) and waits up to the connect timeout for its first
+    /// `LISTEN`, so that every change committed after this returns is delivered (a feed that is
+    /// not up by then keeps trying in the background; polling covers the gap).
+    fn watch_changes(&self, sink: ChangeSink) -> bool {
+        let rt = self.runtime.as_ref().expect("runtime lives until drop");
+        let (ready, listening) = std::sync::mpsc::sync_channel(1);
+        rt.spawn(listen::feed(
+            self.config.clone(),
+            self.owner.clone(),
+            sink,
+            ready,
+        ));
+        if listening.recv_timeout(CONNECT_TIMEOUT * 2).is_err() {
+            tracing::warn!("job change feed not listening yet; idle workers poll until it is");
+        }
+        true
     }
 }

@@ -1,0 +1,140 @@
+//! Issue 17, part 4 (the PostgreSQL half): three `retex serve` replicas on one database and one
+//! data directory run 30 jobs while one replica is `kill -9`'d in the middle of a job and another
+//! is restarted (SIGTERM, then started again). Every job succeeds exactly once visibly: the job
+//! the killed replica held goes back to the queue once its lease expires (measured through the
+//! change feed, against the lease time) and runs again elsewhere (attempt 2), the restarted
+//! replica gives its job back without spending an attempt (attempt 1), and every result is
+//! served identically by every live replica.
+//!
+//! Needs the throw-away server of `pg_server` (ignored by default; CI runs it).
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use chrono::{DateTime, Utc};
+use retex::service::model::JobStatus;
+use retex::service::store::postgres::PgJobStore;
+use retex::service::store::JobStore;
+use uuid::Uuid;
+
+use crate::pg_replicas::spawn_role;
+use crate::pg_server::fresh_url;
+use crate::service_common::*;
+
+const LEASE_SECS: u64 = 5;
+const JOBS: usize = 30;
+
+/// `retex_workers_busy` of a replica's `/metrics`.
+fn busy_workers(base: &str) -> u64 {
+    let text = String::from_utf8(get(&format!("{base}/metrics")).body).unwrap();
+    text.lines()
+        .find_map(|l| l.strip_prefix("retex_workers_busy "))
+        .and_then(|v| v.trim().parse().ok())
+        .expect("retex_workers_busy in /metrics")
+}
+
+/// Waits (up to a minute) until `base` runs a job.
+fn wait_busy(base: &str) {
+    let start = Instant::now();
+    while busy_workers(base) == 0 {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "{base} never ran a job"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Sends SIGTERM and waits for the process to exit.
+fn terminate(p: &mut ServeProcess) {
+    // SAFETY: kill(2) on the child's pid; no memory is passed.
+    let rc = unsafe { libc::kill(p.0.id() as i32, libc::SIGTERM) };
+    assert_eq!(rc, 0);
+    let status = p.0.wait().unwrap();
+    assert!(status.success(), "graceful stop exits 0: {status:?}");
+}
+
+#[test]
+#[ignore = "needs PostgreSQL binaries (initdb, postgres, psql)"]
+fn three_replicas_thirty_jobs_one_killed_mid_job_one_restarted() {
+    let url = fresh_url();
+    let data = tempfile::tempdir().unwrap();
+    let lease = LEASE_SECS.to_string();
+    let extra = ["--lease-secs", lease.as_str()];
+    let mut replicas: Vec<(ServeProcess, String)> = (0..3)
+        .map(|_| spawn_role(data.path(), &url, "all", &extra))
+        .collect();
+
+    // An observer on the same database records when each job goes back to the queue.
+    let observer = PgJobStore::connect(&url, Duration::from_secs(30)).unwrap();
+    let requeued: Arc<Mutex<HashMap<Uuid, DateTime<Utc>>>> = Arc::default();
+    let seen = Arc::clone(&requeued);
+    let last_status: Mutex<HashMap<Uuid, JobStatus>> = Mutex::default();
+    assert!(observer.watch_changes(Box::new(move |c| {
+        let mut last = last_status.lock().unwrap();
+        if last.insert(c.id, c.status) == Some(JobStatus::Processing)
+            && c.status == JobStatus::Enqueued
+        {
+            seen.lock().unwrap().entry(c.id).or_insert_with(Utc::now);
+        }
+    })));
+
+    let mut ids = Vec::new();
+    for i in 0..JOBS {
+        let r = submit(&replicas[i % 3].1, &spot_parts(1024), &[]);
+        assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+        ids.push(r.json()["id"].as_str().unwrap().parse::<Uuid>().unwrap());
+    }
+
+    // kill -9 replica 2 while it runs a job.
+    wait_busy(&replicas[2].1);
+    replicas[2].0 .0.kill().unwrap();
+    replicas[2].0 .0.wait().unwrap();
+    let killed_at = Utc::now();
+    // Restart replica 1 (graceful stop while it runs a job: the job goes back to the queue).
+    wait_busy(&replicas[1].1);
+    terminate(&mut replicas[1].0);
+    replicas[1] = spawn_role(data.path(), &url, "all", &extra);
+    let live = [replicas[0].1.clone(), replicas[1].1.clone()];
+
+    let mut attempts = HashMap::new();
+    for (i, id) in ids.iter().enumerate() {
+        let doc = wait_for(
+            &live[i % 2],
+            &id.to_string(),
+            Duration::from_secs(300),
+            terminal,
+        );
+        assert_eq!(doc["status"], "succeeded", "{doc}");
+        attempts.insert(*id, doc["attempts"].as_u64().unwrap());
+        let a = get(&format!("{}/v1/jobs/{id}/result", live[0])).body;
+        let b = get(&format!("{}/v1/jobs/{id}/result", live[1])).body;
+        assert_eq!(&a[..4], b"glTF");
+        assert!(a == b, "job {id}: both replicas serve the same result");
+    }
+
+    // Exactly one job was interrupted by the crash: it ran a second time. The job of the
+    // gracefully stopped replica gave its attempt back.
+    let twice: Vec<&Uuid> = attempts
+        .iter()
+        .filter(|(_, n)| **n == 2)
+        .map(|(id, _)| id)
+        .collect();
+    assert_eq!(twice.len(), 1, "attempts: {attempts:?}");
+    assert!(attempts.values().all(|n| *n <= 2), "{attempts:?}");
+    let crashed = *twice[0];
+    let back = requeued.lock().unwrap()[&crashed];
+    let waited = (back - killed_at).to_std().unwrap_or_default();
+    // Reclaimed once its lease ran out: within the lease plus one poll tick (1 s) and the
+    // observer's delivery (generous 2 s).
+    assert!(
+        waited <= Duration::from_secs(LEASE_SECS + 3),
+        "the crashed job went back to the queue {waited:?} after the kill (lease {LEASE_SECS} s)"
+    );
+    // Every list shows the 30 jobs succeeded, nothing else.
+    let list = get(&format!("{}/v1/jobs?limit=100", live[0])).json();
+    let jobs = list["jobs"].as_array().unwrap();
+    assert_eq!(jobs.len(), JOBS);
+    assert!(jobs.iter().all(|j| j["status"] == "succeeded"), "{list}");
+}
