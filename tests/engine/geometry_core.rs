@@ -176,6 +176,19 @@ fn cholesky_solves_and_reuses_the_symbolic_analysis() {
         let singles: Vec<Vec<f64>> = many.iter().map(|b| f.solve(b).unwrap()).collect();
         f.solve_many(&mut many).unwrap();
         assert_eq!(many, singles, "parallel solves differ from sequential ones");
+        let mut block: Vec<Vec<f64>> = (0..6).map(|k| a.mul_vec(&random_vec(n, k))).collect();
+        f.solve_block(&mut block).unwrap();
+        let worst = block
+            .iter()
+            .flatten()
+            .zip(singles.iter().flatten())
+            .map(|(p, q)| (p - q).abs())
+            .fold(0.0, f64::max);
+        let scale = singles.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+        assert!(
+            worst <= 1e-12 * scale,
+            "block solve differs by {worst} (scale {scale})"
+        );
     }
     // A pattern from unsorted, one-sided columns is symmetrized and gets its diagonal.
     let p =

@@ -10,7 +10,7 @@
 //!
 //! Solves: [`NumericCholesky::solve`] for one right-hand side, [`NumericCholesky::solve_many`]
 //! for many, in parallel over right-hand sides (each one sequential, so results do not depend on
-//! the thread count). The numeric factorization uses faer's rayon parallelism.
+//! the thread count), [`NumericCholesky::solve_block`] for many as one block in a single pass. The numeric factorization uses faer's rayon parallelism.
 //!
 //! Only the lower triangle of the matrix is read. The factorization is faer's
 //! (`faer::sparse::linalg::cholesky`); this module is glue.
@@ -88,6 +88,27 @@ impl SymbolicCholesky {
     /// [`LinalgError::InvalidPattern`] for another pattern, [`LinalgError::NotPositiveDefinite`]
     /// when a pivot is not positive, [`LinalgError::Factorization`] on allocation failure.
     pub fn factor(&self, matrix: &SymmetricMatrix) -> Result<NumericCholesky, LinalgError> {
+        self.factor_with(matrix, Par::rayon(0))
+    }
+
+    /// [`SymbolicCholesky::factor`] on the calling thread only: for callers that keep the
+    /// other cores busy with independent work meanwhile (faer's parallel factorisation would
+    /// compete with it, and gains little on systems of a few ten thousand unknowns).
+    ///
+    /// # Errors
+    /// As [`SymbolicCholesky::factor`].
+    pub fn factor_sequential(
+        &self,
+        matrix: &SymmetricMatrix,
+    ) -> Result<NumericCholesky, LinalgError> {
+        self.factor_with(matrix, Par::Seq)
+    }
+
+    fn factor_with(
+        &self,
+        matrix: &SymmetricMatrix,
+        par: Par,
+    ) -> Result<NumericCholesky, LinalgError> {
         let same = Arc::ptr_eq(matrix.pattern(), &self.inner.pattern)
             || **matrix.pattern() == *self.inner.pattern;
         if !same {
@@ -95,7 +116,7 @@ impl SymbolicCholesky {
                 "the matrix pattern differs from the analysed pattern".into(),
             ));
         }
-        self.factor_values(matrix.values())
+        self.factor_values_with(matrix.values(), par)
     }
 
     /// Numeric factorization of the matrix with the analysed pattern and `values` (CSC order).
@@ -104,6 +125,10 @@ impl SymbolicCholesky {
     /// As [`SymbolicCholesky::factor`], plus [`LinalgError::ValueCount`] /
     /// [`LinalgError::NonFinite`] for bad values.
     pub fn factor_values(&self, values: &[f64]) -> Result<NumericCholesky, LinalgError> {
+        self.factor_values_with(values, Par::rayon(0))
+    }
+
+    fn factor_values_with(&self, values: &[f64], par: Par) -> Result<NumericCholesky, LinalgError> {
         let pattern = &self.inner.pattern;
         if values.len() != pattern.nnz() {
             return Err(LinalgError::ValueCount {
@@ -115,7 +140,6 @@ impl SymbolicCholesky {
             return Err(LinalgError::NonFinite { index });
         }
         let sym = &self.inner.faer;
-        let par = Par::rayon(0);
         let mut l_values = Vec::new();
         l_values
             .try_reserve_exact(sym.len_val())
@@ -202,6 +226,37 @@ impl NumericCholesky {
             self.check_len(k, b.len())?;
         }
         rhs.par_iter_mut().for_each(|x| self.solve_unchecked(x));
+        Ok(())
+    }
+
+    /// Solves `A xₖ = bₖ` for every right-hand side in place as one `dim × k` block: a single
+    /// sequential pass over the factor serves all of them (faer's supernodal solve works on the
+    /// block with dense kernels), instead of one pass each. Sequential, so results do not depend
+    /// on the thread count; they may differ from [`Self::solve_many`]'s in the last bits.
+    ///
+    /// # Errors
+    /// [`LinalgError::RhsLength`] (with the index of the first offending vector) before any
+    /// solve when a length differs from `dim`.
+    pub fn solve_block(&self, rhs: &mut [Vec<f64>]) -> Result<(), LinalgError> {
+        for (k, b) in rhs.iter().enumerate() {
+            self.check_len(k, b.len())?;
+        }
+        let (n, k) = (self.dim(), rhs.len());
+        if k == 0 {
+            return Ok(());
+        }
+        let mut block = Vec::with_capacity(n * k);
+        for b in rhs.iter() {
+            block.extend_from_slice(b);
+        }
+        let sym = &self.symbolic.inner.faer;
+        let mut mem = MemBuffer::new(sym.solve_in_place_scratch::<f64>(k, Par::Seq));
+        let llt = LltRef::<'_, usize, f64>::new(sym, &self.l_values);
+        let x = MatMut::from_column_major_slice_mut(&mut block, n, k);
+        llt.solve_in_place_with_conj(Conj::No, x, Par::Seq, MemStack::new(&mut mem));
+        for (b, col) in rhs.iter_mut().zip(block.chunks_exact(n)) {
+            b.copy_from_slice(col);
+        }
         Ok(())
     }
 

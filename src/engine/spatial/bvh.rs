@@ -62,13 +62,13 @@ pub struct RayHit {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
-struct Node {
-    lo: [f32; 3],
-    hi: [f32; 3],
+pub(super) struct Node {
+    pub(super) lo: [f32; 3],
+    pub(super) hi: [f32; 3],
     /// Leaf: first triangle (leaf order). Interior: index of the right child.
-    index: u32,
+    pub(super) index: u32,
     /// Leaf: triangle count (> 0). Interior: 0.
-    count: u32,
+    pub(super) count: u32,
 }
 
 /// Per-triangle build record: bounds and the face index.
@@ -96,11 +96,11 @@ impl Prim {
 /// A bounding volume hierarchy over a triangle set. See the module docs.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Bvh {
-    nodes: Vec<Node>,
+    pub(super) nodes: Vec<Node>,
     /// Triangle corners in leaf order.
-    tris: Vec<[[f32; 3]; 3]>,
+    pub(super) tris: Vec<[[f32; 3]; 3]>,
     /// Face index of each triangle in leaf order.
-    faces: Vec<u32>,
+    pub(super) faces: Vec<u32>,
 }
 
 #[derive(Clone, Copy)]

@@ -8,8 +8,9 @@
 //! mixed Voronoi areas, updated after every solve as the paper does after Kazhdan et al. 2012),
 //! so the smoothness term is `λ1/ΣA · xᵀ Lᵀ A⁻¹ L x`. `K = Σ w_k` (hand-placed pairs weigh 1,
 //! derived boundary pairs less). The normal equations are one sparse SPD system with three
-//! right-hand sides per iteration; its pattern (two-rings plus the reference cliques) and
-//! symbolic Cholesky analysis are built once.
+//! right-hand sides per iteration, solved together in one pass over the factor; its pattern
+//! (two-rings plus the reference cliques), symbolic Cholesky analysis and the value slots of
+//! the smoothness terms are built once.
 //!
 //! Choices of ours, where the paper says nothing:
 //! - **Unanchored components.** `Lᵀ A⁻¹ L` vanishes on per-component translations, so a
@@ -24,7 +25,7 @@ use crate::engine::control::Control;
 use crate::engine::linalg::SymbolicCholesky;
 
 use super::refs::RefPair;
-use super::system::{components, voronoi_areas, LapRows, PatternBuilder, Values};
+use super::system::{components, voronoi_areas, BilaplacianSlots, LapRows, PatternBuilder, Values};
 use super::MethodError;
 
 /// One mesh of the fairing: start positions, faces and Laplacian.
@@ -116,6 +117,8 @@ pub fn joint_fairing(
     let pattern = pb.build()?;
     let symbolic = SymbolicCholesky::new(pattern.clone())
         .map_err(|e| MethodError::Internal(format!("fairing analysis: {e}")))?;
+    let slots_s = BilaplacianSlots::new(&pattern, source.lap, 0)?;
+    let slots_t = BilaplacianSlots::new(&pattern, target.lap, n)?;
 
     let mut area_s = voronoi_areas(source.x, source.faces)?;
     let mut area_t = voronoi_areas(target.x, target.faces)?;
@@ -164,8 +167,8 @@ pub fn joint_fairing(
         control.check()?;
         let total_area: f64 = area_s.iter().sum::<f64>() + area_t.iter().sum::<f64>();
         let mut v = Values::zeros(&pattern);
-        v.add_bilaplacian(source.lap, &area_s, 0, l1 / total_area);
-        v.add_bilaplacian(target.lap, &area_t, n, l1 / total_area);
+        v.add_bilaplacian_at(&slots_s, source.lap, &area_s, l1 / total_area);
+        v.add_bilaplacian_at(&slots_t, target.lap, &area_t, l1 / total_area);
         for p in pairs {
             let w = p.weight / k_total;
             let mut row = p.source.entries(0);
@@ -182,11 +185,11 @@ pub fn joint_fairing(
         }
         let matrix = v.into_matrix()?;
         let factor = symbolic
-            .factor(&matrix)
+            .factor_sequential(&matrix)
             .map_err(|e| MethodError::Internal(format!("fairing factorisation: {e}")))?;
         let mut x = rhs.clone();
         factor
-            .solve_many(&mut x)
+            .solve_block(&mut x)
             .map_err(|e| MethodError::Internal(format!("fairing solve: {e}")))?;
         let next_s: Vec<[f64; 3]> = (0..n).map(|i| [x[0][i], x[1][i], x[2][i]]).collect();
         let next_t: Vec<[f64; 3]> = (0..m)

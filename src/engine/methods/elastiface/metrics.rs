@@ -7,13 +7,18 @@
 //!   gap is seen although its corners lie on the surface.
 //! - **Flipped**: a fitted source triangle whose normal points against the target's face normal
 //!   at the closest point to its centroid (negative dot product); count and area fraction.
+//!
+//! The closest-point searches reuse the stages' hierarchies and run in runs of [`RUN`] samples
+//! (consecutive samples lie close together), each search bounded by the distance to the
+//! previous sample's face: the exact answers, found with less traversal.
 
 use rayon::prelude::*;
 
 use crate::engine::math::{cross, dot, length, sub};
-use crate::engine::spatial::Bvh;
+use crate::engine::spatial::{Bvh, ClosestHit};
 
 use super::refs::RefPair;
+use super::register::near_bound;
 
 /// One direction of the Hausdorff distance.
 #[derive(Clone, Copy, Debug, Default, serde::Serialize)]
@@ -61,12 +66,26 @@ pub struct MeshRef<'a> {
     pub x: &'a [[f64; 3]],
     /// Faces.
     pub faces: &'a [[u32; 3]],
+    /// Hierarchy over `x` (as f32) and `faces` (the one the stages already built, when they did).
+    pub bvh: &'a Bvh,
 }
 
+/// Samples per warm-started run of closest-point searches (each run in one task).
+const RUN: usize = 256;
+
 impl MeshRef<'_> {
-    fn bvh(&self) -> Bvh {
-        let p: Vec<[f32; 3]> = self.x.iter().map(|p| p.map(|c| c as f32)).collect();
-        Bvh::build(&p, self.faces)
+    /// The closest point to `q`, the search bounded by the distance to `near` (a face of this
+    /// mesh close to `q`, e.g. the previous sample's hit): the same answer as the unbounded
+    /// search (see [`near_bound`]).
+    fn closest(&self, q: [f32; 3], near: Option<u32>) -> Option<ClosestHit> {
+        let bound = near
+            .and_then(|f| self.faces.get(f as usize))
+            .map_or(f32::INFINITY, |f| {
+                near_bound(q, f.map(|v| self.x[v as usize].map(|c| c as f32)))
+            });
+        self.bvh
+            .closest_point(q, bound)
+            .or_else(|| self.bvh.closest_point(q, f32::INFINITY))
     }
 
     fn samples(&self) -> Vec<[f64; 3]> {
@@ -94,13 +113,17 @@ impl MeshRef<'_> {
     }
 }
 
-fn directed(from: &MeshRef<'_>, to: &Bvh, diagonal: f64) -> Directed {
+fn directed(from: &MeshRef<'_>, to: &MeshRef<'_>, diagonal: f64) -> Directed {
     let samples = from.samples();
     let d: Vec<f64> = samples
-        .par_iter()
-        .map(|p| {
-            to.closest_point(p.map(|c| c as f32), f32::INFINITY)
-                .map_or(f64::INFINITY, |h| (h.distance_squared as f64).sqrt())
+        .par_chunks(RUN)
+        .flat_map_iter(|run| {
+            let mut near = None;
+            run.iter().map(move |p| {
+                let hit = to.closest(p.map(|c| c as f32), near);
+                near = hit.map(|h| h.face);
+                hit.map_or(f64::INFINITY, |h| (h.distance_squared as f64).sqrt())
+            })
         })
         .collect();
     Directed {
@@ -112,8 +135,8 @@ fn directed(from: &MeshRef<'_>, to: &Bvh, diagonal: f64) -> Directed {
 
 /// The Hausdorff distance between `fitted` and `target`, relative to `diagonal`.
 pub fn hausdorff(fitted: &MeshRef<'_>, target: &MeshRef<'_>, diagonal: f64) -> Hausdorff {
-    let s2t = directed(fitted, &target.bvh(), diagonal);
-    let t2s = directed(target, &fitted.bvh(), diagonal);
+    let s2t = directed(fitted, target, diagonal);
+    let t2s = directed(target, fitted, diagonal);
     Hausdorff {
         source_to_target: s2t,
         target_to_source: t2s,
@@ -123,18 +146,21 @@ pub fn hausdorff(fitted: &MeshRef<'_>, target: &MeshRef<'_>, diagonal: f64) -> H
 
 /// Flipped triangles of `fitted` against `target` (see the module docs).
 pub fn flipped(fitted: &MeshRef<'_>, target: &MeshRef<'_>) -> Flipped {
-    let bvh = target.bvh();
-    let per_face: Vec<(bool, f64)> = (0..fitted.faces.len())
-        .into_par_iter()
-        .map(|f| {
-            let n = fitted.normal(f);
-            let area = 0.5 * length(n);
-            let p = fitted.faces[f].map(|v| fitted.x[v as usize]);
-            let c: [f64; 3] = std::array::from_fn(|d| (p[0][d] + p[1][d] + p[2][d]) / 3.0);
-            let flip = bvh
-                .closest_point(c.map(|x| x as f32), f32::INFINITY)
-                .is_some_and(|h| dot(n, target.normal(h.face as usize)) < 0.0);
-            (flip, area)
+    let faces: Vec<usize> = (0..fitted.faces.len()).collect();
+    let per_face: Vec<(bool, f64)> = faces
+        .par_chunks(RUN)
+        .flat_map_iter(|run| {
+            let mut near = None;
+            run.iter().map(move |&f| {
+                let n = fitted.normal(f);
+                let area = 0.5 * length(n);
+                let p = fitted.faces[f].map(|v| fitted.x[v as usize]);
+                let c: [f64; 3] = std::array::from_fn(|d| (p[0][d] + p[1][d] + p[2][d]) / 3.0);
+                let hit = target.closest(c.map(|x| x as f32), near);
+                near = hit.map(|h| h.face);
+                let flip = hit.is_some_and(|h| dot(n, target.normal(h.face as usize)) < 0.0);
+                (flip, area)
+            })
         })
         .collect();
     let total: f64 = per_face.iter().map(|x| x.1).sum();

@@ -22,6 +22,12 @@
 //!    Alexa 2003 with cotan weights), [`region_texture`] (gradient-domain texture blend, Pérez
 //!    et al. 2003) and [`region_colors`] (the same on COLOR_0 of primitives without UVs).
 //!
+//! Speed (issue 10's aim, README "elastiface" → "Benchmark"): the two surfaces, their BVHs and
+//! Laplacians are built in parallel, and the registration's pattern, analysis and the target's
+//! solve-frame BVH are built while the fairing runs (`fair_and_prepare`); the metrics reuse
+//! that BVH. The solves' own shortcuts are described in [`system`], [`register`] and
+//! [`originals`]; none changes the algorithm or its results beyond rounding.
+//!
 //! Known shortfalls (measured by the tests, 2026-12-02; README "elastiface" has the tables): on
 //! an open disc with boundary-loop pairs one boundary vertex folds inward; real scans keep some
 //! flipped area (a deformed copy of the Lee Perry-Smith scan fitted back onto it: Hausdorff
@@ -228,10 +234,17 @@ pub fn run(
     };
     let span = control.span(0.0, 0.05);
     control.stage("surface", 0)?;
-    let src = surface_of(source, &weld, "source")?;
-    let tgt = surface_of(target, &weld, "target")?;
-    let src_bvh = Bvh::build(&src.positions, &src.faces);
-    let tgt_bvh = Bvh::build(&tgt.positions, &tgt.faces);
+    let surface_and_bvh = |asset, side| {
+        surface_of(asset, &weld, side).map(|s| {
+            let bvh = Bvh::build(&s.positions, &s.faces);
+            (s, bvh)
+        })
+    };
+    let (src, tgt) = rayon::join(
+        || surface_and_bvh(source, "source"),
+        || surface_and_bvh(target, "target"),
+    );
+    let ((src, src_bvh), (tgt, tgt_bvh)) = (src?, tgt?);
 
     let welded = writeback::welded_map(source, &src);
     let region_weights = match params.region_blend() {
@@ -296,28 +309,13 @@ pub fn run(
     drop(span);
 
     let span = control.span(0.05, 0.5);
-    let lap_s = system::LapRows::of(&src)?;
-    let lap_t = system::LapRows::of(&tgt)?;
-    let faired = fairing::joint_fairing(
-        &fairing::FairMesh {
-            x: &xs,
-            faces: &src.faces,
-            lap: &lap_s,
-        },
-        &fairing::FairMesh {
-            x: &xt,
-            faces: &tgt.faces,
-            lap: &lap_t,
-        },
+    let (lap_s, lap_t) = rayon::join(|| system::LapRows::of(&src), || system::LapRows::of(&tgt));
+    let (lap_s, lap_t) = (lap_s?, lap_t?);
+    let (faired, reg, xt_bvh, paper_start) = fair_and_prepare(
+        (&xs, &src, &lap_s),
+        (&xt, &tgt, &lap_t),
         &pairs,
-        fairing::FairingWeights {
-            lambda: [
-                params.lambda_smooth,
-                params.lambda_coincide,
-                params.lambda_position,
-            ],
-            iterations: params.fairing_iterations,
-        },
+        params,
         control,
     )?;
     let mut warnings = Vec::new();
@@ -328,7 +326,6 @@ pub fn run(
         ));
     }
 
-    let reg = register::Registration::new(&lap_s, &src.faces, &pairs)?;
     let bt32: Vec<[f32; 3]> = faired.target.iter().map(|p| p.map(|c| c as f32)).collect();
     let bt_bvh = Bvh::build(&bt32, &tgt.faces);
     let base_target = register::FitTarget {
@@ -342,14 +339,13 @@ pub fn run(
         params.registration_iterations,
         control,
     )?;
-    let xt32: Vec<[f32; 3]> = xt.iter().map(|p| p.map(|c| c as f32)).collect();
-    let xt_bvh = Bvh::build(&xt32, &tgt.faces);
     let orig_target = register::FitTarget {
         x: &xt,
         faces: &tgt.faces,
         bvh: &xt_bvh,
     };
-    let (fitted, mut orig_report) = reg.originals(
+    let (fitted, mut orig_report) = reg.originals_from(
+        paper_start,
         &xs,
         &orig_target,
         &carried,
@@ -368,13 +364,17 @@ pub fn run(
 
     let span = control.span(0.5, 0.55);
     control.stage("metrics", 0)?;
+    let fitted32: Vec<[f32; 3]> = fitted.iter().map(|p| p.map(|c| c as f32)).collect();
+    let fitted_bvh = Bvh::build(&fitted32, &src.faces);
     let fitted_mesh = metrics::MeshRef {
         x: &fitted,
         faces: &src.faces,
+        bvh: &fitted_bvh,
     };
     let target_mesh = metrics::MeshRef {
         x: &xt,
         faces: &tgt.faces,
+        bvh: &xt_bvh,
     };
     let hausdorff = metrics::hausdorff(&fitted_mesh, &target_mesh, ref_diag);
     let flipped = metrics::flipped(&fitted_mesh, &target_mesh);
@@ -523,6 +523,63 @@ pub fn run(
         warnings: warnings.clone(),
     };
     Ok((edits, report))
+}
+
+/// What the stages after the fairing start from.
+type Prepared<'a> = (
+    fairing::Faired,
+    register::Registration<'a>,
+    Bvh,
+    originals::PaperStart,
+);
+
+/// The joint fairing (§3.2) of the aligned source and target (positions, surface, Laplacian),
+/// overlapped with what does not depend on it: the registration's pattern and analysis, the
+/// original target's hierarchy and the paper's solve of the originals (factor and fixed
+/// right-hand side) are prepared on the other core meanwhile.
+fn fair_and_prepare<'a>(
+    src: (&[[f64; 3]], &'a Surface, &'a system::LapRows),
+    tgt: (&[[f64; 3]], &Surface, &system::LapRows),
+    pairs: &'a [refs::RefPair],
+    params: &ElastifaceParams,
+    control: &Control,
+) -> Result<Prepared<'a>, MethodError> {
+    let (faired, prepared) = rayon::join(
+        || {
+            fairing::joint_fairing(
+                &fairing::FairMesh {
+                    x: src.0,
+                    faces: &src.1.faces,
+                    lap: src.2,
+                },
+                &fairing::FairMesh {
+                    x: tgt.0,
+                    faces: &tgt.1.faces,
+                    lap: tgt.2,
+                },
+                pairs,
+                fairing::FairingWeights {
+                    lambda: [
+                        params.lambda_smooth,
+                        params.lambda_coincide,
+                        params.lambda_position,
+                    ],
+                    iterations: params.fairing_iterations,
+                },
+                control,
+            )
+        },
+        || {
+            let x32: Vec<[f32; 3]> = tgt.0.iter().map(|p| p.map(|c| c as f32)).collect();
+            let bvh = Bvh::build(&x32, &tgt.1.faces);
+            let reg = register::Registration::new(src.2, &src.1.faces, pairs)?;
+            let start = reg.paper_start(src.0, tgt.0)?;
+            Ok::<_, MethodError>((reg, bvh, start))
+        },
+    );
+    let faired = faired?;
+    let (reg, bvh, start) = prepared?;
+    Ok((faired, reg, bvh, start))
 }
 
 /// Positions as three coordinate vectors.

@@ -27,17 +27,23 @@
 //! distance 0.03 / 0.1, schedules 0.1 / 1, 0.1 / 10, 1, 0.1 / 3, 1, 0.3, 0.1, one or two or three
 //! solves per level, a flip guard); `backward_weight = 0` with `stiffness_levels = 1` and
 //! `original_iterations = 1` is the paper's stage.
+//!
+//! Speed (the same results): the fitted source's hierarchy for the backward searches is built
+//! at the first round and refitted to the moved vertices at the later ones
+//! ([`crate::engine::spatial::refit`]); forward and backward searches are bounded by the distance
+//! to the face found in the previous round (the first forward round by the carried faces).
 
 use std::collections::HashSet;
 
 use rayon::prelude::*;
 
 use crate::engine::control::Control;
+use crate::engine::linalg::NumericCholesky;
 use crate::engine::math::{cross, dot, length, sub};
-use crate::engine::spatial::Bvh;
+use crate::engine::spatial::{Bvh, ClosestHit};
 
 use super::refs::RefRow;
-use super::register::{rms, Closest, Extra, FitTarget, Mu, Registration, StageReport};
+use super::register::{near_bound, rms, Closest, Extra, FitTarget, Mu, Registration, StageReport};
 use super::system::voronoi_areas;
 use super::MethodError;
 
@@ -54,6 +60,14 @@ pub struct Rounds {
     pub max_distance: f64,
     /// Smallest cosine between the source triangle's and the target vertex's normals.
     pub min_cos: f64,
+}
+
+/// The paper's solve of the originals, prepared ([`Registration::paper_start`]).
+pub struct PaperStart {
+    areas: Vec<f64>,
+    target_refs: Vec<[f64; 3]>,
+    factor: NumericCholesky,
+    fixed: Vec<Vec<f64>>,
 }
 
 /// Bending weights of the rounds, read from the end: the last level is the paper's 0.1.
@@ -125,37 +139,77 @@ struct Backward<'a> {
     edges: HashSet<(u32, u32)>,
     vertices: HashSet<u32>,
     rounds: Rounds,
+    /// The fitted source's hierarchy: built at the first round, refitted at the later ones.
+    bvh: Option<Bvh>,
+    /// Per target vertex, the source face of its last closest point (`u32::MAX`: none yet).
+    near: Vec<u32>,
 }
 
+/// The rows of one round and the source face of each.
+type Rows = (Vec<(RefRow, f64, [f64; 3])>, Vec<u32>);
+
 impl Backward<'_> {
-    /// Every kept target vertex's row (see the module docs for the rejections).
-    fn rows(&self, x: &[[f64; 3]], faces: &[[u32; 3]]) -> Vec<(RefRow, f64, [f64; 3])> {
+    /// Every kept target vertex's row (see the module docs for the rejections). Each search is
+    /// bounded by [`near_bound`] of the vertex's face of the previous round as well as by
+    /// `max_distance` (and retried with `max_distance` alone when that finds nothing), so the
+    /// hits are those of the search bounded by `max_distance` only.
+    fn rows(&mut self, x: &[[f64; 3]], faces: &[[u32; 3]]) -> Rows {
         if self.rounds.backward_weight <= 0.0 {
-            return Vec::new();
+            return (Vec::new(), Vec::new());
         }
         let x32: Vec<[f32; 3]> = x.iter().map(|p| p.map(|c| c as f32)).collect();
-        let bvh = Bvh::build(&x32, faces);
-        let w = self.rounds.backward_weight / self.target.x.len().max(1) as f64;
-        self.target
+        let bvh = match self.bvh.take() {
+            Some(mut b) => {
+                b.refit(&x32, faces);
+                b
+            }
+            None => Bvh::build(&x32, faces),
+        };
+        let limit = self.rounds.max_distance as f32;
+        if self.near.len() != self.target.x.len() {
+            self.near = vec![u32::MAX; self.target.x.len()];
+        }
+        let hits: Vec<Option<ClosestHit>> = self
+            .target
             .x
             .par_iter()
-            .zip(&self.normals)
-            .filter_map(|(t, nt)| {
-                let limit = self.rounds.max_distance as f32;
-                let h = bvh.closest_point(t.map(|c| c as f32), limit)?;
-                let f = faces[h.face as usize];
-                let on: Vec<u32> = (0..3).filter(|&k| h.bary[k] > 1e-6).map(|k| f[k]).collect();
-                let on_boundary = match on.as_slice() {
-                    [a, b] => self.edges.contains(&((*a).min(*b), (*a).max(*b))),
-                    [a] => self.vertices.contains(a),
-                    _ => false,
-                };
-                if on_boundary || dot(unit_normal(x, f), *nt) < self.rounds.min_cos {
-                    return None;
-                }
-                Some((RefRow::face(f, h.bary), w, *t))
+            .zip(&self.near)
+            .map(|(t, &near)| {
+                let q = t.map(|c| c as f32);
+                let bound = faces.get(near as usize).map_or(limit, |f| {
+                    limit.min(near_bound(q, f.map(|v| x32[v as usize])))
+                });
+                bvh.closest_point(q, bound).or_else(|| {
+                    (bound < limit)
+                        .then(|| bvh.closest_point(q, limit))
+                        .flatten()
+                })
             })
-            .collect()
+            .collect();
+        self.bvh = Some(bvh);
+        self.near = hits
+            .iter()
+            .map(|h| h.map_or(u32::MAX, |h| h.face))
+            .collect();
+        let w = self.rounds.backward_weight / self.target.x.len().max(1) as f64;
+        let mut rows = Vec::new();
+        let mut row_faces = Vec::new();
+        for ((t, nt), h) in self.target.x.iter().zip(&self.normals).zip(hits) {
+            let Some(h) = h else { continue };
+            let f = faces[h.face as usize];
+            let on: Vec<u32> = (0..3).filter(|&k| h.bary[k] > 1e-6).map(|k| f[k]).collect();
+            let on_boundary = match on.as_slice() {
+                [a, b] => self.edges.contains(&((*a).min(*b), (*a).max(*b))),
+                [a] => self.vertices.contains(a),
+                _ => false,
+            };
+            if on_boundary || dot(unit_normal(x, f), *nt) < self.rounds.min_cos {
+                continue;
+            }
+            rows.push((RefRow::face(f, h.bary), w, *t));
+            row_faces.push(h.face);
+        }
+        (rows, row_faces)
     }
 }
 
@@ -174,25 +228,71 @@ impl Registration<'_> {
         rounds: Rounds,
         control: &Control,
     ) -> Result<(Vec<[f64; 3]>, StageReport), MethodError> {
+        let start = self.paper_start(rest, target.x)?;
+        self.originals_from(start, rest, target, carried, rounds, control)
+    }
+
+    /// What the paper's solve of the originals needs besides the carried points: the rest
+    /// areas, the target's reference points, the factor and the fixed right-hand side. They
+    /// depend on neither stage before, so they can be computed while those run.
+    ///
+    /// # Errors
+    /// [`MethodError::Internal`] if the factorisation fails.
+    pub fn paper_start(
+        &self,
+        rest: &[[f64; 3]],
+        target_x: &[[f64; 3]],
+    ) -> Result<PaperStart, MethodError> {
         let areas = voronoi_areas(rest, self.faces)?;
         let target_refs: Vec<[f64; 3]> =
-            self.pairs.iter().map(|p| p.target.eval(target.x)).collect();
+            self.pairs.iter().map(|p| p.target.eval(target_x)).collect();
+        let none = Extra::default();
+        let factor = self.factor_extra(&areas, PAPER, &none)?;
+        let fixed = self.fixed_rhs_extra(rest, &areas, &target_refs, PAPER, &none);
+        Ok(PaperStart {
+            areas,
+            target_refs,
+            factor,
+            fixed,
+        })
+    }
+
+    /// [`Self::originals`] from a [`Self::paper_start`] of the same `rest` and target.
+    ///
+    /// # Errors
+    /// [`MethodError::Internal`], [`MethodError::Cancelled`].
+    pub fn originals_from(
+        &self,
+        start: PaperStart,
+        rest: &[[f64; 3]],
+        target: &FitTarget<'_>,
+        carried: &Closest,
+        rounds: Rounds,
+        control: &Control,
+    ) -> Result<(Vec<[f64; 3]>, StageReport), MethodError> {
+        let PaperStart {
+            areas,
+            target_refs,
+            factor,
+            fixed,
+        } = start;
         let (edges, vertices) = boundary(self.faces);
-        let back = Backward {
+        let mut back = Backward {
             target,
             normals: vertex_normals(target.x, target.faces),
             edges,
             vertices,
             rounds,
+            bvh: None,
+            near: Vec::new(),
         };
         let work = control.stage(
             "registration_originals",
             (1 + rounds.levels.clamp(1, STIFFNESS.len()) * rounds.per_level) as u64,
         )?;
-        let none = Extra::default();
-        let factor = self.factor_extra(&areas, PAPER, &none)?;
-        let fixed = self.fixed_rhs_extra(rest, &areas, &target_refs, PAPER, &none);
         let mut x = self.solve(&factor, &fixed, &target.points(carried), PAPER)?;
+        // Warm starts of the closest-point searches: the carried faces are faces of this target.
+        let mut previous: Closest = carried.clone();
         let mut report = StageReport {
             solves: 1,
             factorisations: 1,
@@ -206,9 +306,14 @@ impl Registration<'_> {
                 ..PAPER
             };
             for _ in 0..rounds.per_level {
-                let c = target.points(&target.closest(&x));
-                let rows = back.rows(&x, self.faces);
-                let extra = Extra { rows: &rows };
+                let near = target.closest_near(&x, Some(&previous));
+                let c = target.points(&near);
+                previous = near;
+                let (rows, faces) = back.rows(&x, self.faces);
+                let extra = Extra {
+                    rows: &rows,
+                    faces: &faces,
+                };
                 let factor = self.factor_extra(&areas, mu, &extra)?;
                 let fixed = self.fixed_rhs_extra(rest, &areas, &target_refs, mu, &extra);
                 x = self.solve(&factor, &fixed, &c, mu)?;
@@ -217,7 +322,10 @@ impl Registration<'_> {
                 work.tick(1)?;
             }
         }
-        report.rms_fit = rms(&x, &target.points(&target.closest(&x)));
+        report.rms_fit = rms(
+            &x,
+            &target.points(&target.closest_near(&x, Some(&previous))),
+        );
         Ok((x, report))
     }
 }

@@ -17,16 +17,24 @@
 //! `μ1 = μ3 = 0.1`, bending relative to the original source, the first solve using the base
 //! stage's last closest points carried to the original target as (triangle, barycentric), each
 //! further one recomputing them on the original target ([`super::originals`]).
+//!
+//! Speed (the same results; techniques of ours, not the paper's): the bending term's values go
+//! through slots computed once with the pattern ([`super::system::BilaplacianSlots`]), the fitting
+//! term through the diagonal's positions and backward rows through per-face slots, so a
+//! re-assembly searches nothing; the three coordinates are solved as one block; every
+//! closest-point search after the first is bounded by the distance to the point's previous
+//! closest face ([`FitTarget::closest_near`], [`near_bound`]), which prunes most of the
+//! hierarchy and returns the same answer as the unbounded search.
 
 use rayon::prelude::*;
 
-use crate::engine::control::Control;
+use crate::engine::control::{Control, StageProgress};
 use crate::engine::linalg::{NumericCholesky, SparsityPattern, SymbolicCholesky};
-use crate::engine::spatial::Bvh;
+use crate::engine::spatial::{point_triangle_distance_squared, Bvh};
 use std::sync::Arc;
 
 use super::refs::{RefPair, RefRow};
-use super::system::{voronoi_areas, LapRows, PatternBuilder, Values};
+use super::system::{face_slots, voronoi_areas, BilaplacianSlots, LapRows, PatternBuilder, Values};
 use super::MethodError;
 
 /// Closest points of the source vertices on a target: per vertex (target face, barycentric).
@@ -45,15 +53,34 @@ pub struct FitTarget<'a> {
 impl FitTarget<'_> {
     /// The closest point of every `p` (parallel; independent of the thread count).
     pub fn closest(&self, points: &[[f64; 3]]) -> Closest {
+        self.closest_near(points, None)
+    }
+
+    /// [`Self::closest`], each query bounded by its distance to a nearby face (`near[i]`, e.g.
+    /// the previous iteration's closest face of point `i`) so that the search prunes most of
+    /// the hierarchy. The bound is widened by a relative 1e-4, so the exact closest point and
+    /// any tie are still found: the answers are those of the unbounded search.
+    pub fn closest_near(&self, points: &[[f64; 3]], near: Option<&Closest>) -> Closest {
         points
             .par_iter()
-            .map(|p| {
+            .enumerate()
+            .map(|(i, p)| {
                 let q = p.map(|c| c as f32);
+                let bound = near.map_or(f32::INFINITY, |c| self.bound(c[i].0, q));
                 self.bvh
-                    .closest_point(q, f32::INFINITY)
+                    .closest_point(q, bound)
+                    .or_else(|| self.bvh.closest_point(q, f32::INFINITY))
                     .map_or((0, [1.0, 0.0, 0.0]), |h| (h.face, h.bary))
             })
             .collect()
+    }
+
+    /// [`near_bound`] for `face` of this target (its corners as the hierarchy holds them).
+    fn bound(&self, face: u32, q: [f32; 3]) -> f32 {
+        match self.faces.get(face as usize) {
+            Some(f) => near_bound(q, f.map(|v| self.x[v as usize].map(|x| x as f32))),
+            None => f32::INFINITY,
+        }
     }
 
     /// Positions of (face, barycentric) points.
@@ -65,6 +92,16 @@ impl FitTarget<'_> {
     }
 }
 
+/// The distance from `q` to the triangle `corners` (in f32, as a hierarchy holds them), widened
+/// by a relative 1e-4 (and 1e-12): a closest-point search bounded by it still finds that
+/// triangle and any tie, so it returns what the unbounded search would (the warm start of
+/// repeated searches from nearby points, as the texel loop's `Surface::hint_bound`).
+pub(super) fn near_bound(q: [f32; 3], corners: [[f32; 3]; 3]) -> f32 {
+    let [a, b, c] = corners;
+    let (d2, _, _) = point_triangle_distance_squared(q, a, b, c);
+    d2.sqrt() * (1.0 + 1e-4) + 1e-12
+}
+
 /// The registration system of one source mesh: pattern and symbolic analysis.
 pub struct Registration<'a> {
     pub(super) lap: &'a LapRows,
@@ -72,6 +109,12 @@ pub struct Registration<'a> {
     pub(super) pairs: &'a [RefPair],
     pattern: Arc<SparsityPattern>,
     symbolic: SymbolicCholesky,
+    /// Value slots of the bending term.
+    bending: BilaplacianSlots,
+    /// Value positions of the diagonal (the fitting term).
+    diagonal: Vec<usize>,
+    /// Value slots of every source face's corners (the backward rows).
+    face_slots: Vec<[u32; 9]>,
     k_total: f64,
 }
 
@@ -81,6 +124,8 @@ pub struct Registration<'a> {
 pub(super) struct Extra<'e> {
     /// Barycentric rows with their weights and the points `t` they are pulled to.
     pub rows: &'e [(RefRow, f64, [f64; 3])],
+    /// The source face of each row (its corners are the row's vertices).
+    pub faces: &'e [u32],
 }
 
 /// The weights of one stiffness level.
@@ -92,6 +137,14 @@ pub struct Mu {
     pub fit: f64,
     /// Reference points μ3.
     pub refs: f64,
+}
+
+/// The state of the base stage's closest-point iterations.
+struct Icp<'s, 't> {
+    target: &'s FitTarget<'t>,
+    x: &'s mut Vec<[f64; 3]>,
+    previous: &'s mut Option<Closest>,
+    work: &'s StageProgress<'s>,
 }
 
 /// What a registration stage did.
@@ -127,6 +180,9 @@ impl<'a> Registration<'a> {
             lap,
             faces,
             pairs,
+            bending: BilaplacianSlots::new(&pattern, lap, 0)?,
+            diagonal: pattern.diagonal_positions(),
+            face_slots: face_slots(&pattern, faces)?,
             pattern,
             symbolic,
             k_total: pairs
@@ -151,18 +207,19 @@ impl<'a> Registration<'a> {
         let n = self.lap.len();
         let total: f64 = areas.iter().sum();
         let mut v = Values::zeros(&self.pattern);
-        v.add_bilaplacian(self.lap, areas, 0, mu.bend / total);
-        for (row, w, _) in extra.rows {
-            v.add_outer(&row.entries(0), *w);
+        v.add_bilaplacian_at(&self.bending, self.lap, areas, mu.bend / total);
+        for (k, (row, w, _)) in extra.rows.iter().enumerate() {
+            match extra.faces.get(k) {
+                Some(&f) => v.add_face_outer(&self.face_slots[f as usize], row, *w),
+                None => v.add_outer(&row.entries(0), *w),
+            }
         }
-        for i in 0..n {
-            v.add(i, i, mu.fit / n as f64);
-        }
+        v.add_diagonal(&self.diagonal, mu.fit / n as f64);
         for p in self.pairs {
             v.add_outer(&p.source.entries(0), mu.refs * p.weight / self.k_total);
         }
         self.symbolic
-            .factor(&v.into_matrix()?)
+            .factor_sequential(&v.into_matrix()?)
             .map_err(|e| MethodError::Internal(format!("registration factorisation: {e}")))
     }
 
@@ -229,9 +286,28 @@ impl<'a> Registration<'a> {
             })
             .collect();
         factor
-            .solve_many(&mut rhs)
+            .solve_block(&mut rhs)
             .map_err(|e| MethodError::Internal(format!("registration solve: {e}")))?;
         Ok((0..n).map(|i| [rhs[0][i], rhs[1][i], rhs[2][i]]).collect())
+    }
+
+    /// `rounds` closest-point updates, each followed by a solve with `factor`.
+    fn iterate(
+        &self,
+        icp: &mut Icp<'_, '_>,
+        factor: &NumericCholesky,
+        fixed: &[Vec<f64>],
+        mu: Mu,
+        rounds: usize,
+    ) -> Result<(), MethodError> {
+        for _ in 0..rounds {
+            let near = icp.target.closest_near(icp.x, icp.previous.as_ref());
+            let c = icp.target.points(&near);
+            *icp.previous = Some(near);
+            *icp.x = self.solve(factor, fixed, &c, mu)?;
+            icp.work.tick(1)?;
+        }
+        Ok(())
     }
 
     /// §3.3 on the base meshes: from `rest = B^s`, fit to `target = B^t`. Returns the fitted
@@ -250,25 +326,43 @@ impl<'a> Registration<'a> {
         let target_refs: Vec<[f64; 3]> =
             self.pairs.iter().map(|p| p.target.eval(target.x)).collect();
         let mut x = rest.to_vec();
+        let mut previous: Option<Closest> = None;
         let mut report = StageReport::default();
         let work = control.stage("registration", 3 * per_stiffness as u64)?;
-        for bend in [10.0, 1.0, 0.1] {
-            let mu = Mu {
-                bend,
-                fit: 1.0,
-                refs: 10.0,
-            };
-            let factor = self.factor(&areas, mu)?;
-            report.factorisations += 1;
+        let mu = [10.0, 1.0, 0.1].map(|bend| Mu {
+            bend,
+            fit: 1.0,
+            refs: 10.0,
+        });
+        // The matrices depend on the rest areas and the weights only, not on `x`: the later
+        // levels' factorisations run on the other core while the first level iterates.
+        let first = self.factor(&areas, mu[0])?;
+        let mut icp = Icp {
+            target,
+            x: &mut x,
+            previous: &mut previous,
+            work: &work,
+        };
+        let (done, later) = rayon::join(
+            || {
+                let fixed = self.fixed_rhs(rest, &areas, &target_refs, mu[0]);
+                self.iterate(&mut icp, &first, &fixed, mu[0], per_stiffness)
+            },
+            || {
+                mu[1..]
+                    .iter()
+                    .map(|&m| self.factor(&areas, m))
+                    .collect::<Result<Vec<_>, _>>()
+            },
+        );
+        done?;
+        for (factor, &mu) in later?.iter().zip(&mu[1..]) {
             let fixed = self.fixed_rhs(rest, &areas, &target_refs, mu);
-            for _ in 0..per_stiffness {
-                let c = target.points(&target.closest(&x));
-                x = self.solve(&factor, &fixed, &c, mu)?;
-                report.solves += 1;
-                work.tick(1)?;
-            }
+            self.iterate(&mut icp, factor, &fixed, mu, per_stiffness)?;
         }
-        let closest = target.closest(&x);
+        report.factorisations = 3;
+        report.solves = 3 * per_stiffness;
+        let closest = target.closest_near(&x, previous.as_ref());
         report.rms_fit = rms(&x, &target.points(&closest));
         Ok((x, closest, report))
     }

@@ -5,8 +5,15 @@
 //! Both energies are quadratic with a fixed pattern, so the pattern and its symbolic Cholesky
 //! analysis are built once per stage and only the values change between iterations (the paper
 //! updates the Voronoi areas and the stiffness, never the connectivity).
+//!
+//! For speed (techniques of ours; the values are the same bit for bit): the two-ring pattern is
+//! collected with a stamp per vertex instead of pushing every clique pair and sorting the
+//! duplicates away, and [`BilaplacianSlots`] / [`face_slots`] record once where each term lands
+//! in the value vector, so every re-assembly is a scatter without searches.
 
 use std::sync::Arc;
+
+use rayon::prelude::*;
 
 use crate::engine::geometry::laplacian::{cotan_laplacian, mass_matrix, LaplacianParams, MassKind};
 use crate::engine::linalg::{SparsityPattern, SymmetricMatrix};
@@ -117,6 +124,9 @@ pub fn voronoi_areas(positions: &[[f64; 3]], faces: &[[u32; 3]]) -> Result<Vec<f
 /// Collects the nonzero structure of a symmetric system.
 pub struct PatternBuilder {
     cols: Vec<Vec<usize>>,
+    /// Whether [`Self::clique_row`] added entries on one side only, so that the build must
+    /// symmetrise them (cliques are symmetric by construction).
+    one_sided: bool,
 }
 
 impl PatternBuilder {
@@ -124,6 +134,7 @@ impl PatternBuilder {
     pub fn new(n: usize) -> Self {
         Self {
             cols: vec![Vec::new(); n],
+            one_sided: false,
         }
     }
 
@@ -140,16 +151,27 @@ impl PatternBuilder {
 
     /// Entries `(i, j)` for every `j` in `cols` (the build symmetrises them).
     pub fn clique_row(&mut self, i: usize, cols: &[usize]) {
+        self.one_sided = true;
         self.cols[i].extend(cols.iter().filter(|&&j| j != i));
     }
 
-    /// The pattern of `Lᵀ A⁻¹ L` for a Laplacian whose unknowns start at `offset`.
+    /// The pattern of `Lᵀ A⁻¹ L` for a Laplacian whose unknowns start at `offset`: the union of
+    /// the cliques of `L`'s rows. As `L`'s pattern is symmetric with its diagonal, vertex `v`'s
+    /// column is the union of the rows `k` in row `v` (its two-ring), collected once per entry
+    /// with a stamp instead of pushing every clique pair.
     pub fn bilaplacian(&mut self, lap: &LapRows, offset: usize) {
-        let mut buf = Vec::new();
-        for k in 0..lap.len() {
-            buf.clear();
-            buf.extend(lap.row(k).0.iter().map(|&c| c as usize + offset));
-            self.clique(&buf);
+        let mut stamp = vec![usize::MAX; lap.len()];
+        for v in 0..lap.len() {
+            let col = &mut self.cols[v + offset];
+            for &k in lap.row(v).0 {
+                for &j in lap.row(k as usize).0 {
+                    let j = j as usize;
+                    if j != v && stamp[j] != v {
+                        stamp[j] = v;
+                        col.push(j + offset);
+                    }
+                }
+            }
         }
     }
 
@@ -164,12 +186,107 @@ impl PatternBuilder {
         self.clique(&buf);
     }
 
-    /// The finished pattern.
+    /// The finished pattern: columns sorted and deduplicated in parallel, symmetrised only when
+    /// [`Self::clique_row`] was used.
     pub fn build(self) -> Result<Arc<SparsityPattern>, MethodError> {
-        SparsityPattern::from_columns(&self.cols)
-            .map(Arc::new)
-            .map_err(|e| MethodError::Internal(format!("pattern: {e}")))
+        let n = self.cols.len();
+        if self.one_sided {
+            return SparsityPattern::from_columns(&self.cols)
+                .map(Arc::new)
+                .map_err(|e| MethodError::Internal(format!("pattern: {e}")));
+        }
+        let cols: Vec<Vec<usize>> = self
+            .cols
+            .into_par_iter()
+            .enumerate()
+            .map(|(j, mut rows)| {
+                rows.push(j);
+                rows.sort_unstable();
+                rows.dedup();
+                rows
+            })
+            .collect();
+        if let Some(bad) = cols.iter().flatten().find(|&&i| i >= n) {
+            return Err(MethodError::Internal(format!(
+                "pattern: row {bad} out of range for {n} columns"
+            )));
+        }
+        Ok(Arc::new(SparsityPattern::from_sorted_columns(cols)))
     }
+}
+
+/// Where each term of `Lᵀ diag(d) L` lands in a pattern's value vector, for a Laplacian whose
+/// unknowns start at `offset`: one slot per (row `k`, entry `a`, entry `b`) of `L`, in the
+/// order [`Values::add_bilaplacian`] adds them. Built once per stage, so that every
+/// re-assembly (new areas or stiffness) is a plain scatter instead of a search per term.
+pub struct BilaplacianSlots {
+    slots: Vec<u32>,
+    rows: usize,
+}
+
+impl BilaplacianSlots {
+    /// The slots of `lap` (offset `offset`) in `pattern`.
+    ///
+    /// # Errors
+    /// [`MethodError::Internal`] if a term is outside the pattern or the pattern has `≥ 2³²`
+    /// entries.
+    pub fn new(
+        pattern: &SparsityPattern,
+        lap: &LapRows,
+        offset: usize,
+    ) -> Result<Self, MethodError> {
+        if pattern.nnz() >= u32::MAX as usize - 1 {
+            return Err(MethodError::Internal("pattern too large".into()));
+        }
+        let slots: Vec<u32> = (0..lap.len())
+            .into_par_iter()
+            .flat_map_iter(|k| {
+                let c = lap.row(k).0;
+                c.iter().flat_map(move |&a| {
+                    c.iter().map(move |&b| {
+                        pattern
+                            .find(a as usize + offset, b as usize + offset)
+                            .map_or(u32::MAX, |at| at as u32)
+                    })
+                })
+            })
+            .collect();
+        if slots.contains(&u32::MAX) {
+            return Err(MethodError::Internal(
+                "a Laplacian term is not in the pattern".into(),
+            ));
+        }
+        Ok(Self {
+            slots,
+            rows: lap.len(),
+        })
+    }
+}
+
+/// The 3 × 3 value positions of every face's corners in `pattern` (row-major over the corner
+/// pairs), for [`Values::add_face_outer`].
+///
+/// # Errors
+/// [`MethodError::Internal`] if a corner pair is outside the pattern.
+pub fn face_slots(
+    pattern: &SparsityPattern,
+    faces: &[[u32; 3]],
+) -> Result<Vec<[u32; 9]>, MethodError> {
+    faces
+        .iter()
+        .map(|f| {
+            let mut s = [0u32; 9];
+            for a in 0..3 {
+                for b in 0..3 {
+                    let at = pattern
+                        .find(f[a] as usize, f[b] as usize)
+                        .ok_or_else(|| MethodError::Internal("face outside the pattern".into()))?;
+                    s[3 * a + b] = at as u32;
+                }
+            }
+            Ok(s)
+        })
+        .collect()
 }
 
 /// Values of a symmetric matrix with a fixed pattern, both triangles filled.
@@ -219,6 +336,65 @@ impl Values {
         }
     }
 
+    /// [`Self::add_bilaplacian`] through precomputed slots (`slots` built for `lap` on this
+    /// pattern): the same terms added in the same order, so the same values bit for bit.
+    ///
+    /// # Panics
+    /// If `slots` were built for another Laplacian (a programming error).
+    pub fn add_bilaplacian_at(
+        &mut self,
+        slots: &BilaplacianSlots,
+        lap: &LapRows,
+        areas: &[f64],
+        w: f64,
+    ) {
+        assert_eq!(slots.rows, lap.len(), "slots of another Laplacian");
+        let mut at = slots.slots.iter();
+        for (k, area) in areas.iter().enumerate().take(lap.len()) {
+            let v = lap.row(k).1;
+            let s = w / area;
+            for &a in v {
+                let sa = s * a;
+                for &b in v {
+                    let i = *at.next().expect("one slot per term");
+                    self.vals[i as usize] += sa * b;
+                }
+            }
+        }
+    }
+
+    /// Adds `w` at every position of `diagonal` (the pattern's diagonal positions, from
+    /// [`SparsityPattern::diagonal_positions`]), as [`Self::add`]`(i, i, w)` for every `i` would.
+    pub fn add_diagonal(&mut self, diagonal: &[usize], w: f64) {
+        for &at in diagonal {
+            self.vals[at] += w;
+        }
+    }
+
+    /// Adds `w · rowᵀ row` for the point `row` of face `f` through `slots` (the face's 3 × 3
+    /// positions, [`face_slots`]): the terms of [`Self::add_outer`]`(&row.entries(0), w)` in
+    /// its order, zero weights skipped as there. Rows whose corners repeat a vertex take
+    /// [`Self::add_outer`] itself (their entries are merged).
+    pub fn add_face_outer(&mut self, slots: &[u32; 9], row: &RefRow, w: f64) {
+        let [i, j, k] = row.idx;
+        if i == j || j == k || i == k {
+            self.add_outer(&row.entries(0), w);
+            return;
+        }
+        for a in 0..3 {
+            if row.w[a] == 0.0 {
+                continue;
+            }
+            let wa = w * row.w[a];
+            for b in 0..3 {
+                if row.w[b] == 0.0 {
+                    continue;
+                }
+                self.vals[slots[3 * a + b] as usize] += wa * row.w[b];
+            }
+        }
+    }
+
     /// The matrix.
     pub fn into_matrix(self) -> Result<SymmetricMatrix, MethodError> {
         SymmetricMatrix::new(self.pattern, self.vals)
@@ -259,4 +435,76 @@ pub fn components(n: usize, faces: &[[u32; 3]]) -> (Vec<u32>, usize) {
         comp[v] = id[r];
     }
     (comp, count as usize)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A gently curved, jittered 7 × 7 grid.
+    fn grid() -> Surface {
+        let n = 7u32;
+        let mut p = Vec::new();
+        for j in 0..n {
+            for i in 0..n {
+                let (x, y) = (i as f32 + 0.13 * (j as f32).sin(), j as f32);
+                p.push([x, y, 0.1 * (x * x + 0.5 * y * y)]);
+            }
+        }
+        let mut f = Vec::new();
+        for j in 0..n - 1 {
+            for i in 0..n - 1 {
+                let a = j * n + i;
+                f.push([a, a + 1, a + n + 1]);
+                f.push([a, a + n + 1, a + n]);
+            }
+        }
+        Surface::from_triangles(p, f)
+    }
+
+    #[test]
+    fn stamped_pattern_and_slots_match_the_clique_and_search_assembly() {
+        let s = grid();
+        let lap = LapRows::of(&s).unwrap();
+        let n = lap.len();
+        let mut pb = PatternBuilder::new(2 * n);
+        pb.bilaplacian(&lap, 0);
+        pb.bilaplacian(&lap, n);
+        let pattern = pb.build().unwrap();
+        let mut cliques = PatternBuilder::new(2 * n);
+        for offset in [0, n] {
+            for k in 0..n {
+                let c: Vec<usize> = lap.row(k).0.iter().map(|&j| j as usize + offset).collect();
+                cliques.clique(&c);
+            }
+        }
+        assert_eq!(
+            *pattern,
+            SparsityPattern::from_columns(&cliques.cols).unwrap()
+        );
+
+        let areas: Vec<f64> = (0..n)
+            .map(|i| 0.5 + (i as f64 * 0.37).sin().abs())
+            .collect();
+        let slots = BilaplacianSlots::new(&pattern, &lap, n).unwrap();
+        let mut searched = Values::zeros(&pattern);
+        searched.add_bilaplacian(&lap, &areas, n, 0.7);
+        let mut slotted = Values::zeros(&pattern);
+        slotted.add_bilaplacian_at(&slots, &lap, &areas, 0.7);
+        assert_eq!(searched.vals, slotted.vals);
+
+        let faces = face_slots(&pattern, &s.faces).unwrap();
+        for (f, bary) in [(3, [0.2, 0.0, 0.8]), (40, [0.3, 0.3, 0.4])] {
+            let row = RefRow::face(s.faces[f], bary);
+            searched.add_outer(&row.entries(0), 1.3);
+            slotted.add_face_outer(&faces[f], &row, 1.3);
+        }
+        assert_eq!(searched.vals, slotted.vals);
+        let diagonal = pattern.diagonal_positions();
+        for i in 0..2 * n {
+            searched.add(i, i, 0.25);
+        }
+        slotted.add_diagonal(&diagonal, 0.25);
+        assert_eq!(searched.vals, slotted.vals);
+    }
 }
