@@ -97,6 +97,12 @@ pub struct ServeArgs {
     /// [env RETEX_DATABASE_URL; default: the SQLite file in the data dir].
     #[arg(long)]
     pub database_url: Option<String>,
+    /// Object store for uploads and results shared by replicas: s3://BUCKET/PREFIX,
+    /// gs://BUCKET/PREFIX, az://CONTAINER/PREFIX or file:///FOLDER; endpoint, region and
+    /// credentials from AWS_* / GOOGLE_* / AZURE_* [env RETEX_BLOB_URL; default: files in the
+    /// data dir].
+    #[arg(long)]
+    pub blob_url: Option<String>,
     /// api (routes only), worker (runs jobs; health endpoints only) or all [env RETEX_ROLE;
     /// default all].
     #[arg(long)]
@@ -172,6 +178,9 @@ pub fn config(args: &ServeArgs) -> Result<(ServeConfig, Origins), String> {
         lease_secs,
         poll_secs
     );
+    if let Some(url) = &args.blob_url {
+        c.blob_url = Some(url.clone());
+    }
     if let Some(url) = &args.database_url {
         c.database_url = Some(url.clone());
     }

@@ -107,9 +107,15 @@ pub struct ServeConfig {
     pub log_json: bool,
     /// PostgreSQL job store shared by replicas, e.g. `postgres://retex:pw@db:5432/retex`
     /// (or `host=/run/postgresql user=retex dbname=retex`); unset (the default): the embedded
-    /// SQLite file under `data_dir` (env `RETEX_DATABASE_URL`). Blobs stay under `data_dir`,
-    /// which replicas must then share.
+    /// SQLite file under `data_dir` (env `RETEX_DATABASE_URL`). Blobs stay under `data_dir`
+    /// unless `blob_url` is set; replicas must then share that folder.
     pub database_url: Option<String>,
+    /// Object store for uploads and results shared by replicas: `s3://bucket/prefix`,
+    /// `gs://bucket/prefix`, `az://container/prefix` or `file:///folder`, with endpoint,
+    /// region and credentials from the usual `AWS_*` / `GOOGLE_*` / `AZURE_*` variables; unset
+    /// (the default): files under `data_dir` (env `RETEX_BLOB_URL`). Uploads are still spooled
+    /// under `data_dir` before they are sent.
+    pub blob_url: Option<String>,
     /// What this process does: `api` (routes, no runner), `worker` (runner, health endpoints
     /// and metrics only) or `all` (the default) (env `RETEX_ROLE`).
     pub role: Role,
@@ -160,6 +166,7 @@ impl Default for ServeConfig {
             memory_bytes: None,
             log_json: false,
             database_url: None,
+            blob_url: None,
             role: Role::All,
             lease_secs: 30,
             poll_secs: 1,
@@ -340,6 +347,9 @@ impl ServeConfig {
         if let Some(v) = get("RETEX_DATABASE_URL") {
             self.database_url = Some(v.trim().to_string()).filter(|v| !v.is_empty());
         }
+        if let Some(v) = get("RETEX_BLOB_URL") {
+            self.blob_url = Some(v.trim().to_string()).filter(|v| !v.is_empty());
+        }
         if let Some(v) = get("RETEX_ROLE") {
             self.role = parse("RETEX_ROLE", &v)?;
         }
@@ -410,6 +420,11 @@ impl ServeConfig {
                     "database_url",
                     "must be a PostgreSQL URL (postgres://…) or key=value connection string",
                 );
+            }
+        }
+        if let Some(url) = &self.blob_url {
+            if let Err(why) = crate::service::store::object::split_url(url) {
+                return bad("blob_url", &why);
             }
         }
         if self.database_url.is_none() && self.role != Role::All {
@@ -516,6 +531,23 @@ mod tests {
         // A role without a shared database would split one process's jobs: refused.
         assert!(ServeConfig::from_toml("role = \"worker\"\n", p).is_err());
         assert!(ServeConfig::from_toml("database_url = \"mysql://x\"\n", p).is_err());
+    }
+
+    #[test]
+    fn blob_url_from_env_and_toml_and_checked() {
+        let mut c = ServeConfig::default();
+        assert_eq!(c.blob_url, None);
+        c.apply_env(|k| (k == "RETEX_BLOB_URL").then(|| " s3://farm/retex ".to_string()))
+            .unwrap();
+        assert_eq!(c.blob_url.as_deref(), Some("s3://farm/retex"));
+        c.validate().unwrap();
+        let p = Path::new("x.toml");
+        let c = ServeConfig::from_toml("blob_url = \"file:///srv/blobs\"\n", p).unwrap();
+        assert_eq!(c.blob_url.as_deref(), Some("file:///srv/blobs"));
+        for bad in ["ftp://x/y", "s3:///y", "file://relative", "bucket"] {
+            let e = ServeConfig::from_toml(&format!("blob_url = {bad:?}\n"), p).unwrap_err();
+            assert!(e.to_string().contains("blob_url"), "{bad}: {e}");
+        }
     }
 
     #[test]

@@ -205,8 +205,8 @@ fn the_readme_blob_layout_is_where_the_files_are() {
             format!("blobs/blobs/jobs/{id}/inputs/constraints.json"),
         ),
         (
-            "<data>/blobs/blobs/jobs/<id>/outputs/result.glb",
-            format!("blobs/blobs/jobs/{id}/outputs/result.glb"),
+            "<data>/blobs/blobs/jobs/<id>/outputs/a<n>/result.glb",
+            format!("blobs/blobs/jobs/{id}/outputs/a1/result.glb"),
         ),
     ] {
         assert!(readme.contains(documented), "README lacks {documented}");

@@ -9,6 +9,7 @@
 mod common;
 mod service_common;
 
+mod blob_store;
 mod connections;
 mod contract;
 mod correlation;
@@ -27,10 +28,12 @@ mod pg_feed;
 mod pg_kill;
 mod pg_replicas;
 mod pg_server;
+mod pg_stale;
 mod preview_normals;
 mod recovery;
 mod robustness;
 mod runner;
+mod s3_server;
 mod scopes;
 mod soak;
 mod storage_faults;

@@ -1,12 +1,17 @@
-//! Issue 17, part 4 (the PostgreSQL half): three `retex serve` replicas on one database and one
-//! data directory run 30 jobs while one replica is `kill -9`'d in the middle of a job and another
-//! is restarted (SIGTERM, then started again). Every job succeeds exactly once visibly: the job
-//! the killed replica held goes back to the queue once its lease expires (measured through the
-//! change feed, against the lease time) and runs again elsewhere (attempt 2), the restarted
-//! replica gives its job back without spending an attempt (attempt 1), and every result is
-//! served identically by every live replica.
+//! Issue 17, part 4: three `retex serve` replicas on one database run 30 jobs while one replica
+//! is `kill -9`'d in the middle of a job and another is restarted (SIGTERM, then started again).
+//! Every job succeeds exactly once visibly: the job the killed replica held goes back to the
+//! queue once its lease expires (measured through the change feed, against the lease time) and
+//! runs again elsewhere (attempt 2), the restarted replica gives its job back without spending
+//! an attempt (attempt 1), and every result is served identically by every live replica.
 //!
-//! Needs the throw-away server of `pg_server` (ignored by default; CI runs it).
+//! Twice: with blobs in one shared data directory, and with blobs in an S3 bucket (moto), each
+//! replica on its own data directory (no shared disk at all); there every stored artifact is
+//! also read back from the bucket and checked against the size and SHA-256 its record holds,
+//! under the folder of the attempt that committed it (nothing lost, nothing overwritten).
+//!
+//! Needs the throw-away servers of `pg_server` and `s3_server` (ignored by default; CI runs
+//! them).
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
@@ -16,17 +21,18 @@ use chrono::{DateTime, Utc};
 use retex::service::model::JobStatus;
 use retex::service::store::postgres::PgJobStore;
 use retex::service::store::JobStore;
+use sha2::Digest;
 use uuid::Uuid;
 
-use crate::pg_replicas::spawn_role;
 use crate::pg_server::fresh_url;
+use crate::s3_server::{fresh_bucket, S3Bucket};
 use crate::service_common::*;
 
-const LEASE_SECS: u64 = 5;
+pub(crate) const LEASE_SECS: u64 = 5;
 const JOBS: usize = 30;
 
 /// `retex_workers_busy` of a replica's `/metrics`.
-fn busy_workers(base: &str) -> u64 {
+pub(crate) fn busy_workers(base: &str) -> u64 {
     let text = String::from_utf8(get(&format!("{base}/metrics")).body).unwrap();
     text.lines()
         .find_map(|l| l.strip_prefix("retex_workers_busy "))
@@ -35,7 +41,7 @@ fn busy_workers(base: &str) -> u64 {
 }
 
 /// Waits (up to a minute) until `base` runs a job.
-fn wait_busy(base: &str) {
+pub(crate) fn wait_busy(base: &str) {
     let start = Instant::now();
     while busy_workers(base) == 0 {
         assert!(
@@ -55,17 +61,50 @@ fn terminate(p: &mut ServeProcess) {
     assert!(status.success(), "graceful stop exits 0: {status:?}");
 }
 
+/// Where the replicas keep blobs.
+pub(crate) enum Blobs {
+    /// One data directory shared by all replicas.
+    SharedDir(tempfile::TempDir),
+    /// An S3 bucket; each replica on its own data directory.
+    S3(S3Bucket, Vec<tempfile::TempDir>),
+}
+
+impl Blobs {
+    /// Starts replica `i` (role all, one worker, a short lease).
+    pub(crate) fn spawn(&mut self, url: &str, i: usize) -> (ServeProcess, String) {
+        let lease = LEASE_SECS.to_string();
+        let mut args = vec!["--workers", "1", "--role", "all", "--database-url", url];
+        args.extend(["--shutdown-secs", "5", "--memory-bytes", "0"]);
+        args.extend(["--lease-secs", lease.as_str()]);
+        match self {
+            Blobs::SharedDir(dir) => spawn_serve(dir.path(), &args, "warn"),
+            Blobs::S3(bucket, dirs) => {
+                while dirs.len() <= i {
+                    dirs.push(tempfile::tempdir().unwrap());
+                }
+                args.extend(["--blob-url", bucket.url.as_str()]);
+                spawn_serve_env(dirs[i].path(), &args, "warn", &bucket.env)
+            }
+        }
+    }
+}
+
 #[test]
 #[ignore = "needs PostgreSQL binaries (initdb, postgres, psql)"]
 fn three_replicas_thirty_jobs_one_killed_mid_job_one_restarted() {
-    let url = fresh_url();
-    let data = tempfile::tempdir().unwrap();
-    let lease = LEASE_SECS.to_string();
-    let extra = ["--lease-secs", lease.as_str()];
-    let mut replicas: Vec<(ServeProcess, String)> = (0..3)
-        .map(|_| spawn_role(data.path(), &url, "all", &extra))
-        .collect();
+    let dir = tempfile::tempdir().unwrap();
+    kill_and_restart(Blobs::SharedDir(dir));
+}
 
+#[test]
+#[ignore = "needs PostgreSQL binaries and moto[server] (python3 -m pip install 'moto[server]')"]
+fn three_replicas_on_s3_thirty_jobs_one_killed_mid_job_one_restarted() {
+    kill_and_restart(Blobs::S3(fresh_bucket(), Vec::new()));
+}
+
+fn kill_and_restart(mut blobs: Blobs) {
+    let url = fresh_url();
+    let mut replicas: Vec<(ServeProcess, String)> = (0..3).map(|i| blobs.spawn(&url, i)).collect();
     // An observer on the same database records when each job goes back to the queue.
     let observer = PgJobStore::connect(&url, Duration::from_secs(30)).unwrap();
     let requeued: Arc<Mutex<HashMap<Uuid, DateTime<Utc>>>> = Arc::default();
@@ -95,7 +134,7 @@ fn three_replicas_thirty_jobs_one_killed_mid_job_one_restarted() {
     // Restart replica 1 (graceful stop while it runs a job: the job goes back to the queue).
     wait_busy(&replicas[1].1);
     terminate(&mut replicas[1].0);
-    replicas[1] = spawn_role(data.path(), &url, "all", &extra);
+    replicas[1] = blobs.spawn(&url, 1);
     let live = [replicas[0].1.clone(), replicas[1].1.clone()];
 
     let mut attempts = HashMap::new();
@@ -137,4 +176,21 @@ fn three_replicas_thirty_jobs_one_killed_mid_job_one_restarted() {
     let jobs = list["jobs"].as_array().unwrap();
     assert_eq!(jobs.len(), JOBS);
     assert!(jobs.iter().all(|j| j["status"] == "succeeded"), "{list}");
+
+    // Every artifact is in the bucket under its committing attempt's folder, as recorded.
+    if let Blobs::S3(bucket, _) = &blobs {
+        let spool = tempfile::tempdir().unwrap();
+        let store = bucket.open(spool.path());
+        for id in &ids {
+            let job = observer.get(*id).unwrap().unwrap();
+            for a in &job.artifacts {
+                let folder = format!("jobs/{id}/outputs/a{}/", job.attempts);
+                assert!(a.key.starts_with(&folder), "{} not under {folder}", a.key);
+                let bytes = retex::service::store::BlobStore::get(&store, &a.key).unwrap();
+                assert_eq!(bytes.len() as u64, a.size, "{}", a.key);
+                let sha = sha2::Sha256::digest(&bytes);
+                assert_eq!(hex::encode(sha), a.sha256, "{} was overwritten", a.key);
+            }
+        }
+    }
 }

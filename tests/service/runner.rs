@@ -182,7 +182,7 @@ async fn a_job_succeeds_on_an_engine_thread_and_its_glb_loads() {
     assert_eq!(job.artifacts[0].media_type, "model/gltf-binary");
     assert!(job.artifacts.iter().any(|a| a.name == "report.json"));
     for a in &job.artifacts {
-        assert_eq!(a.key, format!("jobs/{id}/outputs/{}", a.name));
+        assert_eq!(a.key, format!("jobs/{id}/outputs/a1/{}", a.name));
         let bytes = env.blobs.get(&a.key).unwrap();
         assert_eq!(bytes.len() as u64, a.size);
         assert_eq!(hex::encode(Sha256::digest(&bytes)), a.sha256);

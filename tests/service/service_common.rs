@@ -374,11 +374,22 @@ impl Drop for ServeProcess {
 /// Starts the release binary as `retex serve --addr 127.0.0.1:0 --data-dir DATA ARGS…` with
 /// `RETEX_LOG=log` and returns it with its base URL (read from its first stdout line).
 pub fn spawn_serve(data: &Path, args: &[&str], log: &str) -> (ServeProcess, String) {
+    spawn_serve_env(data, args, log, &[])
+}
+
+/// As [`spawn_serve`], with extra environment variables (e.g. `AWS_*` for an S3 blob store).
+pub fn spawn_serve_env(
+    data: &Path,
+    args: &[&str],
+    log: &str,
+    env: &[(String, String)],
+) -> (ServeProcess, String) {
     let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_retex"))
         .args(["serve", "--addr", "127.0.0.1:0"])
         .arg("--data-dir")
         .arg(data)
         .args(args)
+        .envs(env.iter().map(|(k, v)| (k, v)))
         .env("RETEX_LOG", log)
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::inherit())

@@ -74,6 +74,10 @@ impl BlobStore for FullDisk {
         self.check(key)?;
         self.inner.put(key, bytes)
     }
+    fn put_new(&self, key: &str, bytes: &[u8]) -> Result<(), StoreError> {
+        self.check(key)?;
+        self.inner.put_new(key, bytes)
+    }
     fn put_file(&self, key: &str, temp: &Path) -> Result<(), StoreError> {
         self.check(key)?;
         self.inner.put_file(key, temp)

@@ -1,7 +1,7 @@
 //! The stores: the job-store suite (state machine, pagination, atomic claims, recovery,
 //! idempotency, retention) run on both `SqliteJobStore` and `PgJobStore` (module
-//! `postgres_suite`, on a throw-away server), SQLite's durability across reopen, and `FsBlobStore` (atomic writes, ranges,
-//! key validation, prefix deletion).
+//! `postgres_suite`, on a throw-away server), SQLite's durability across reopen, and the
+//! file-system blob store's temp-file sweep (the blob-store suite is in `blob_store.rs`).
 #![cfg(feature = "service")]
 
 use std::collections::HashSet;
@@ -562,117 +562,6 @@ mod postgres_suite {
 }
 
 // ---------------------------------------------------------------- blobs
-
-#[test]
-fn blob_put_get_len_range_and_overwrite() {
-    let dir = TempDir::new("blobs");
-    let blobs = FsBlobStore::open(&dir.0).unwrap();
-    let data: Vec<u8> = (0..10_000u32).map(|i| (i * 7) as u8).collect();
-    blobs.put("jobs/a/inputs/source/Fox.bin", &data).unwrap();
-    assert_eq!(blobs.get("jobs/a/inputs/source/Fox.bin").unwrap(), data);
-    assert_eq!(blobs.len("jobs/a/inputs/source/Fox.bin").unwrap(), 10_000);
-    assert_eq!(
-        blobs
-            .read_range("jobs/a/inputs/source/Fox.bin", 100, 50)
-            .unwrap(),
-        &data[100..150]
-    );
-    assert_eq!(
-        blobs
-            .read_range("jobs/a/inputs/source/Fox.bin", 9_990, 50)
-            .unwrap(),
-        &data[9_990..]
-    );
-    assert!(blobs
-        .read_range("jobs/a/inputs/source/Fox.bin", 20_000, 5)
-        .unwrap()
-        .is_empty());
-    blobs.put("jobs/a/inputs/source/Fox.bin", b"new").unwrap();
-    assert_eq!(blobs.get("jobs/a/inputs/source/Fox.bin").unwrap(), b"new");
-    // No temporary file is left behind.
-    assert_eq!(std::fs::read_dir(blobs.temp_dir()).unwrap().count(), 0);
-    assert!(matches!(
-        blobs.get("jobs/a/missing"),
-        Err(StoreError::BlobNotFound(_))
-    ));
-    assert!(matches!(
-        blobs.len("jobs/a/missing"),
-        Err(StoreError::BlobNotFound(_))
-    ));
-}
-
-#[test]
-fn blob_put_file_moves_a_temp_file_into_place() {
-    let dir = TempDir::new("blobs");
-    let blobs = FsBlobStore::open(&dir.0).unwrap();
-    let temp = blobs.temp_dir().join("upload-1");
-    std::fs::write(&temp, b"streamed").unwrap();
-    blobs.put_file("jobs/b/inputs/target/t.glb", &temp).unwrap();
-    assert!(!temp.exists());
-    assert_eq!(
-        blobs.get("jobs/b/inputs/target/t.glb").unwrap(),
-        b"streamed"
-    );
-    // A file outside the temp dir is refused.
-    let outside = dir.0.join("outside");
-    std::fs::write(&outside, b"x").unwrap();
-    assert!(blobs.put_file("jobs/b/x", &outside).is_err());
-    assert!(outside.exists());
-}
-
-#[test]
-fn bad_blob_keys_are_refused() {
-    let dir = TempDir::new("blobs");
-    let blobs = FsBlobStore::open(&dir.0).unwrap();
-    for key in [
-        "../x", "/abs", "a//b", "", "a/../b", "a/./b", "a/", "a b", "a\\b", "ä", "..", "a/b\0",
-    ] {
-        assert!(
-            matches!(blobs.put(key, b"x"), Err(StoreError::InvalidKey(_))),
-            "{key:?} must be refused"
-        );
-        assert!(
-            matches!(blobs.get(key), Err(StoreError::InvalidKey(_))),
-            "{key:?}"
-        );
-    }
-    assert!(!dir.0.parent().unwrap().join("x").exists());
-    blobs.put("ok/A-z_0.9", b"x").unwrap();
-}
-
-#[test]
-fn delete_prefix_removes_a_job_folder_only() {
-    let dir = TempDir::new("blobs");
-    let blobs = FsBlobStore::open(&dir.0).unwrap();
-    blobs.put("jobs/j1/inputs/a.glb", b"1").unwrap();
-    blobs.put("jobs/j1/outputs/result.glb", b"2").unwrap();
-    blobs.put("jobs/j10/outputs/result.glb", b"3").unwrap();
-    blobs.put("jobs/j2/outputs/result.glb", b"4").unwrap();
-    blobs.delete_prefix("jobs/j1/").unwrap();
-    assert!(matches!(
-        blobs.get("jobs/j1/inputs/a.glb"),
-        Err(StoreError::BlobNotFound(_))
-    ));
-    assert!(matches!(
-        blobs.get("jobs/j1/outputs/result.glb"),
-        Err(StoreError::BlobNotFound(_))
-    ));
-    assert_eq!(blobs.get("jobs/j10/outputs/result.glb").unwrap(), b"3");
-    // A prefix without the trailing slash is a string prefix.
-    blobs.delete_prefix("jobs/j1").unwrap();
-    assert!(blobs.get("jobs/j10/outputs/result.glb").is_err());
-    assert_eq!(blobs.get("jobs/j2/outputs/result.glb").unwrap(), b"4");
-    // Deleting what is not there is fine; escaping the root is not.
-    blobs.delete_prefix("jobs/nothing/").unwrap();
-    assert!(matches!(
-        blobs.delete_prefix("../"),
-        Err(StoreError::InvalidKey(_))
-    ));
-    assert!(matches!(
-        blobs.delete_prefix("/"),
-        Err(StoreError::InvalidKey(_))
-    ));
-}
 
 #[test]
 fn temp_files_of_a_dead_writer_are_swept_at_open_but_not_a_live_ones() {

@@ -27,6 +27,7 @@ use crate::service::config::Role;
 use crate::service::config::ServeConfig;
 use crate::service::jobs::runner::{Runner, RunnerConfig};
 use crate::service::store::fs::FsBlobStore;
+use crate::service::store::object::ObjectBlobStore;
 use crate::service::store::postgres::PgJobStore;
 use crate::service::store::sqlite::SqliteJobStore;
 use crate::service::store::{BlobStore, JobStore, StoreError};
@@ -223,8 +224,13 @@ pub async fn start_with_stores(
         }
         None => Arc::new(SqliteJobStore::open(&config.db_path()).map_err(|e| e.to_string())?),
     };
-    let blobs: Arc<dyn BlobStore> =
-        Arc::new(FsBlobStore::open(&config.blob_dir()).map_err(|e| e.to_string())?);
+    let blobs: Arc<dyn BlobStore> = match &config.blob_url {
+        Some(url) => {
+            let store = ObjectBlobStore::open(url, &config.blob_dir());
+            Arc::new(store.map_err(|e| format!("blob store: {e}"))?)
+        }
+        None => Arc::new(FsBlobStore::open(&config.blob_dir()).map_err(|e| e.to_string())?),
+    };
     let (jobs, blobs) = wrap(jobs, blobs);
     let runner = Runner::start(
         RunnerConfig {

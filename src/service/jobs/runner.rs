@@ -16,9 +16,13 @@
 //! writes share it).
 //!
 //! Durability order on success: the result model and every artifact are written under
-//! deterministic keys (`jobs/<id>/outputs/<name>`, fsynced), then the job flips to `succeeded`
-//! in one transaction, so a `kill -9` at any point leaves either a processing job (re-run after
-//! restart by [`JobStore::recover`]) or a finished job whose files exist.
+//! deterministic, attempt-scoped keys (`jobs/<id>/outputs/a<attempt>/<name>`) with create-only
+//! puts ([`BlobStore::put_new`]), then the job flips to `succeeded` in one transaction, so a
+//! `kill -9` at any point leaves either a processing job (re-run after restart by
+//! [`JobStore::recover`], as the next attempt, under its own keys) or a finished job whose files
+//! exist. An attempt never writes over another's files: a replica that lost its lease and still
+//! finishes its engine call writes under its own attempt's keys, the store refuses its finish,
+//! and it deletes what it wrote; the committed attempt's files are untouched.
 //!
 //! Cancellation: [`Runner::cancel`] flips the job's Control and wakes the job's task, which
 //! finishes the job as `canceled` in the store at once (clients never wait on the engine). The
@@ -659,6 +663,9 @@ impl Runner {
         };
 
         if canceled {
+            if let Outcome::Succeeded { artifacts, .. } = &outcome {
+                self.discard_outputs(id, artifacts).await;
+            }
             let how = match &outcome {
                 Outcome::Succeeded { .. } => "succeeded",
                 Outcome::Failed(_) | Outcome::StorageFull(_) => "failed",
@@ -678,6 +685,10 @@ impl Runner {
                 Err(e) => tracing::warn!(%id, error = %e, "storing final progress panicked"),
             }
         }
+        let stored = match &outcome {
+            Outcome::Succeeded { artifacts, .. } => artifacts.clone(),
+            _ => Vec::new(),
+        };
         let finish = match outcome {
             Outcome::StorageFull(detail) => {
                 self.requeue_after_full_disk(id, &detail).await;
@@ -706,7 +717,9 @@ impl Runner {
                 Finish::Canceled
             }
         };
-        self.store_finish(id, finish).await;
+        if !self.store_finish(id, finish).await {
+            self.discard_outputs(id, &stored).await;
+        }
     }
 
     /// Moves the job to its terminal state in the store and announces it. A store that refuses
@@ -716,14 +729,20 @@ impl Runner {
     /// that still cannot be recorded becomes a failure with the stable type
     /// `/problems/result-not-stored` (a smaller record; the outputs stay until the job is
     /// pruned), retried the same way. Only a shutdown ends the retries early: the job is then
-    /// left processing and the next start's recovery re-runs it.
-    async fn store_finish(&self, id: Uuid, finish: Finish) {
+    /// left processing and the next start's recovery re-runs it. Returns false when the store
+    /// refused the ending for good (the job was already terminal, deleted, or leased by another
+    /// replica): the caller's outputs belong to no record then.
+    async fn store_finish(&self, id: Uuid, finish: Finish) -> bool {
         let mut finish = finish;
         let mut rounds = 0u32;
-        while !self.try_finish(id, &finish).await {
-            if self.stopping.load(Ordering::SeqCst) {
-                tracing::warn!(%id, "stopping with the job's end unrecorded; recovery re-runs it");
-                return;
+        loop {
+            match self.try_finish(id, &finish).await {
+                Some(stored) => return stored,
+                None if self.stopping.load(Ordering::SeqCst) => {
+                    tracing::warn!(%id, "stopping with the job's end unrecorded; recovery re-runs it");
+                    return true;
+                }
+                None => {}
             }
             if rounds == FINISH_SLOW_ROUNDS && matches!(finish, Finish::Succeeded { .. }) {
                 tracing::error!(%id, rounds, "the job's success cannot be recorded; failing it");
@@ -738,9 +757,9 @@ impl Runner {
         }
     }
 
-    /// [`FINISH_ATTEMPTS`] quick tries of storing `finish`. True when the job's end is settled:
-    /// stored, or already terminal / gone (a conflict or a missing job is not retried).
-    async fn try_finish(&self, id: Uuid, finish: &Finish) -> bool {
+    /// [`FINISH_ATTEMPTS`] quick tries of storing `finish`: `Some(true)` stored, `Some(false)`
+    /// refused for good (a conflict or a missing job is not retried), `None` not settled.
+    async fn try_finish(&self, id: Uuid, finish: &Finish) -> Option<bool> {
         let mut delay = Duration::from_millis(100);
         for attempt in 1..=FINISH_ATTEMPTS {
             let jobs = Arc::clone(&self.jobs);
@@ -749,11 +768,11 @@ impl Runner {
                 Ok(Ok(rec)) => {
                     tracing::info!(%id, status = rec.status.as_str(), "job finished");
                     self.emit(id, rec.status, rec.progress.clone(), rec.revision);
-                    return true;
+                    return Some(true);
                 }
                 Ok(Err(e @ (StoreError::Conflict { .. } | StoreError::NotFound(_)))) => {
                     tracing::warn!(%id, error = %e, "job not finished");
-                    return true;
+                    return Some(false);
                 }
                 Ok(Err(e)) => {
                     if e.is_storage_failure() {
@@ -768,7 +787,7 @@ impl Runner {
                 delay *= 4;
             }
         }
-        false
+        None
     }
 }
 
@@ -921,8 +940,8 @@ fn execute(ctx: &EngineCtx, job: &JobRecord, control: &Control, preview: &Contro
     }
     let mut artifacts = Vec::with_capacity(files.len());
     for (name, media_type, bytes) in files {
-        let key = format!("jobs/{}/outputs/{name}", job.id);
-        if let Err(e) = ctx.blobs.put(&key, &bytes) {
+        let key = format!("{}{name}", outputs_prefix(job));
+        if let Err(e) = put_output(ctx.blobs.as_ref(), &key, &bytes) {
             if e.is_storage_full() {
                 return Outcome::StorageFull(format!("storing {name}: {e}"));
             }
@@ -950,5 +969,23 @@ fn execute(ctx: &EngineCtx, job: &JobRecord, control: &Control, preview: &Contro
         artifacts,
         report,
         timings,
+    }
+}
+
+/// The folder of this attempt's outputs: `jobs/<id>/outputs/a<attempt>/`.
+pub fn outputs_prefix(job: &JobRecord) -> String {
+    format!("jobs/{}/outputs/a{}/", job.id, job.attempts)
+}
+
+/// Stores one output with a create-only put. The same bytes already there (the same attempt
+/// number after a graceful stop gave the attempt back) are accepted; other bytes are an error,
+/// never overwritten.
+fn put_output(blobs: &dyn BlobStore, key: &str, bytes: &[u8]) -> Result<(), StoreError> {
+    match blobs.put_new(key, bytes) {
+        Err(StoreError::BlobExists(k)) => match blobs.get(key) {
+            Ok(stored) if stored == bytes => Ok(()),
+            _ => Err(StoreError::BlobExists(k)),
+        },
+        other => other,
     }
 }

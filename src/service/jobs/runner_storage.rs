@@ -1,7 +1,8 @@
 //! Storage failures seen by the [`Runner`]: a job whose output write hit a full disk is not
 //! failed (the disk, not the job, is at fault) but put back to the queue, its partial outputs
 //! removed, and no job is claimed for `storage_retry` so a full disk does not spin jobs
-//! through the workers.
+//! through the workers. Outputs of an attempt whose finish the store refused are deleted
+//! ([`Runner::discard_outputs`]).
 //!
 //! `/readyz` asks [`Runner::storage_healthy`], a live probe rather than a time window: one
 //! blob write ([`crate::service::store::BlobStore::probe`]) and one rolled-back database write ([`crate::service::store::JobStore::probe`]),
@@ -17,6 +18,8 @@ use chrono::Utc;
 use uuid::Uuid;
 
 use super::{locked, Runner, FINISH_ATTEMPTS};
+use crate::service::model::ArtifactRef;
+use crate::service::store::StoreError;
 
 /// The storage probe behind `/readyz` runs at most this often (unless a failure was noted).
 pub const PROBE_EVERY: std::time::Duration = std::time::Duration::from_secs(2);
@@ -101,6 +104,31 @@ impl Runner {
             }
             tokio::time::sleep(delay).await;
             delay *= 4;
+        }
+    }
+
+    /// Deletes the outputs an attempt stored that no record points at (its finish was refused:
+    /// the job was canceled, deleted or reclaimed by another replica meanwhile). Only this
+    /// attempt's folder goes; a failure is logged (the files then go with the job).
+    pub(super) async fn discard_outputs(&self, id: Uuid, artifacts: &[ArtifactRef]) {
+        let mut folders: Vec<String> = artifacts
+            .iter()
+            .filter_map(|a| a.key.rsplit_once('/').map(|(dir, _)| format!("{dir}/")))
+            .collect();
+        folders.dedup();
+        if folders.is_empty() {
+            return;
+        }
+        let blobs = self.blobs.clone();
+        let delete = move || -> Result<(), StoreError> {
+            folders.iter().try_for_each(|f| blobs.delete_prefix(f))
+        };
+        match tokio::task::spawn_blocking(delete).await {
+            Ok(Ok(())) => {
+                tracing::info!(%id, "discarded the outputs of a finish the store refused")
+            }
+            Ok(Err(e)) => tracing::warn!(%id, error = %e, "discarding unrecorded outputs failed"),
+            Err(e) => tracing::warn!(%id, error = %e, "discarding unrecorded outputs panicked"),
         }
     }
 }

@@ -1,4 +1,5 @@
-//! The embedded [`BlobStore`]: blobs are files under `<root>/blobs/<key>`, written atomically.
+//! The embedded [`BlobStore`]: blobs are files under `<root>/blobs/<key>`, written atomically
+//! (uploads are spooled in `<root>/tmp`, see [`super::spool`]).
 //!
 //! A write goes to a fresh file in `<root>/tmp` (same file system), is fsynced, renamed over its
 //! final name, and the parent directory is fsynced, so after a crash a key holds either nothing,
@@ -10,38 +11,16 @@
 use std::fs::{self, File, OpenOptions};
 use std::io::{ErrorKind, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
-use std::time::{Duration, SystemTime};
+use std::time::Duration;
 
-use uuid::Uuid;
-
+use super::spool::{sync_dir, Spool};
 use super::{BlobStore, StoreError};
-
-/// Temporary files older than this are removed by [`FsBlobStore::open`] when another process
-/// may be using the same folder (left over by a crash).
-const STALE_TEMP: Duration = Duration::from_secs(3600);
 
 /// File-system [`BlobStore`].
 #[derive(Debug, Clone)]
 pub struct FsBlobStore {
     blobs: PathBuf,
-    tmp: PathBuf,
-    /// `<root>/tmp.lock`, held with an exclusive `flock` for the store's life when no other
-    /// process holds it (then every file in `tmp` at open was left by a dead writer).
-    _tmp_lock: Option<std::sync::Arc<File>>,
-}
-
-/// Takes an exclusive, non-blocking `flock` on `path` (created if needed); `None` when another
-/// open file holds it.
-fn exclusive_lock(path: &Path) -> std::io::Result<Option<File>> {
-    use std::os::fd::AsRawFd;
-    let file = OpenOptions::new()
-        .create(true)
-        .truncate(false)
-        .write(true)
-        .open(path)?;
-    // SAFETY: flock on a file descriptor this function owns; no memory is passed.
-    let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
-    Ok((rc == 0).then_some(file))
+    spool: Spool,
 }
 
 /// Checks a key and splits it into its segments.
@@ -70,10 +49,6 @@ pub fn validate_key(key: &str) -> Result<(), StoreError> {
     segments(key).map(|_| ())
 }
 
-fn sync_dir(dir: &Path) -> std::io::Result<()> {
-    File::open(dir)?.sync_all()
-}
-
 fn not_found(key: &str) -> impl Fn(std::io::Error) -> StoreError + '_ {
     move |e| {
         if e.kind() == ErrorKind::NotFound {
@@ -95,23 +70,9 @@ impl FsBlobStore {
         fs::create_dir_all(root)?;
         let root = fs::canonicalize(root)?;
         let blobs = root.join("blobs");
-        let tmp = root.join("tmp");
         fs::create_dir_all(&blobs)?;
-        fs::create_dir_all(&tmp)?;
-        let lock = exclusive_lock(&root.join("tmp.lock"))?;
-        sync_dir(&root)?;
-        let sole_user = lock.is_some();
-        let store = Self {
-            blobs,
-            tmp,
-            _tmp_lock: lock.map(std::sync::Arc::new),
-        };
-        store.sweep_temp(if sole_user {
-            Duration::ZERO
-        } else {
-            STALE_TEMP
-        })?;
-        Ok(store)
+        let spool = Spool::open(&root)?;
+        Ok(Self { blobs, spool })
     }
 
     /// The file of a (valid) key.
@@ -154,43 +115,59 @@ impl FsBlobStore {
         Ok(())
     }
 
-    fn new_temp(&self) -> PathBuf {
-        self.tmp.join(format!("put-{}", Uuid::new_v4()))
+    /// Writes `bytes` to a fresh temporary file and fsyncs it.
+    fn write_temp(&self, bytes: &[u8]) -> Result<PathBuf, StoreError> {
+        let temp = self.spool.new_temp();
+        let written = (|| {
+            let mut f = OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(&temp)?;
+            f.write_all(bytes)?;
+            f.sync_all()
+        })();
+        match written {
+            Ok(()) => Ok(temp),
+            Err(e) => {
+                let _ = fs::remove_file(&temp);
+                Err(e.into())
+            }
+        }
     }
 }
 
 impl BlobStore for FsBlobStore {
     fn put(&self, key: &str, bytes: &[u8]) -> Result<(), StoreError> {
         let dest = self.path_of(key)?;
-        let temp = self.new_temp();
-        let result = (|| {
-            let mut f = OpenOptions::new()
-                .write(true)
-                .create_new(true)
-                .open(&temp)?;
-            f.write_all(bytes)?;
-            f.sync_all()?;
-            drop(f);
-            self.install(&temp, &dest)
-        })();
+        let temp = self.write_temp(bytes)?;
+        let result = self.install(&temp, &dest);
         if result.is_err() {
             let _ = fs::remove_file(&temp);
         }
         result
     }
 
+    /// A hard link from the synced temporary file: `link(2)` fails when the name exists, so of
+    /// two writers exactly one creates the blob and neither can replace it.
+    fn put_new(&self, key: &str, bytes: &[u8]) -> Result<(), StoreError> {
+        let dest = self.path_of(key)?;
+        let temp = self.write_temp(bytes)?;
+        let result = self
+            .ensure_parent(&dest)
+            .and_then(|()| match fs::hard_link(&temp, &dest) {
+                Ok(()) => Ok(sync_dir(dest.parent().unwrap_or(&self.blobs))?),
+                Err(e) if e.kind() == ErrorKind::AlreadyExists => {
+                    Err(StoreError::BlobExists(key.to_string()))
+                }
+                Err(e) => Err(e.into()),
+            });
+        let _ = fs::remove_file(&temp);
+        result
+    }
+
     fn put_file(&self, key: &str, temp: &Path) -> Result<(), StoreError> {
         let dest = self.path_of(key)?;
-        let real = fs::canonicalize(temp)?;
-        if real.parent() != Some(self.tmp.as_path()) || !real.is_file() {
-            return Err(StoreError::Io(std::io::Error::new(
-                ErrorKind::InvalidInput,
-                format!(
-                    "{} is not a file directly inside the blob store's temp dir",
-                    temp.display()
-                ),
-            )));
-        }
+        let real = self.spool.check_temp(temp)?;
         OpenOptions::new().write(true).open(&real)?.sync_all()?;
         self.install(&real, &dest)
     }
@@ -288,25 +265,10 @@ impl BlobStore for FsBlobStore {
     }
 
     fn temp_dir(&self) -> PathBuf {
-        self.tmp.clone()
+        self.spool.dir().to_path_buf()
     }
 
     fn sweep_temp(&self, older_than: Duration) -> Result<usize, StoreError> {
-        let now = SystemTime::now();
-        let mut removed = 0;
-        for entry in fs::read_dir(&self.tmp)?.flatten() {
-            let old = older_than.is_zero()
-                || entry
-                    .metadata()
-                    .ok()
-                    .filter(|m| m.is_file())
-                    .and_then(|m| m.modified().ok())
-                    .and_then(|t| now.duration_since(t).ok())
-                    .is_some_and(|age| age > older_than);
-            if old && fs::remove_file(entry.path()).is_ok() {
-                removed += 1;
-            }
-        }
-        Ok(removed)
+        self.spool.sweep(older_than)
     }
 }

@@ -1,8 +1,9 @@
 //! Durable storage behind two traits: [`JobStore`] (job records, idempotency keys) and
 //! [`BlobStore`] (uploaded files and results). The embedded implementations are SQLite in WAL
 //! mode with `synchronous=FULL` ([`sqlite::SqliteJobStore`]) and a data directory with atomic
-//! writes ([`fs::FsBlobStore`]); [`postgres::PgJobStore`] is the networked job store that
-//! several `retex serve` replicas share (issue 17), behind the same traits.
+//! writes ([`fs::FsBlobStore`]); [`postgres::PgJobStore`] and [`object::ObjectBlobStore`] (S3,
+//! GCS, Azure or a local folder) are the networked stores that several `retex serve` replicas
+//! share (issue 17), behind the same traits.
 //!
 //! Leases (multi-replica stores only): a store whose jobs several processes claim says so
 //! through [`JobStore::lease_duration`]; the runner then renews the lease of each running job
@@ -24,7 +25,9 @@ use uuid::Uuid;
 use super::model::{ArtifactRef, JobProgress, JobRecord, JobStatus, Problem};
 
 pub mod fs;
+pub mod object;
 pub mod postgres;
+pub mod spool;
 pub mod sqlite;
 
 /// Storage failures.
@@ -57,6 +60,12 @@ pub enum StoreError {
     /// No blob under this key.
     #[error("blob {0:?} not found")]
     BlobNotFound(String),
+    /// [`BlobStore::put_new`]: a blob is already stored under this key (it is left as it was).
+    #[error("blob {0:?} already exists")]
+    BlobExists(String),
+    /// An object store (S3, GCS, Azure) failed or could not be reached.
+    #[error("object store: {0}")]
+    ObjectStore(String),
     /// File system failure.
     #[error("io: {0}")]
     Io(#[from] std::io::Error),
@@ -154,6 +163,7 @@ impl StoreError {
         matches!(
             self,
             StoreError::Io(_)
+                | StoreError::ObjectStore(_)
                 | StoreError::Database(_)
                 | StoreError::Busy(_)
                 | StoreError::DatabaseFull(_)
@@ -350,6 +360,11 @@ pub const PROBE_BYTES: usize = 4096;
 pub trait BlobStore: Send + Sync + 'static {
     /// Writes `bytes` under `key` atomically (temporary file, fsync, rename).
     fn put(&self, key: &str, bytes: &[u8]) -> Result<(), StoreError>;
+    /// Writes `bytes` under `key` only if nothing is stored there yet (a create-only,
+    /// conditional put: `If-None-Match: *` on S3, a hard link on a file system), else
+    /// [`StoreError::BlobExists`] and the stored blob is unchanged. Job outputs go through it,
+    /// so a result once written is never replaced.
+    fn put_new(&self, key: &str, bytes: &[u8]) -> Result<(), StoreError>;
     /// Moves a finished temporary file (from [`BlobStore::temp_dir`]) under `key` atomically.
     fn put_file(&self, key: &str, temp: &std::path::Path) -> Result<(), StoreError>;
     /// Reads a whole blob.
