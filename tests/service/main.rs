@@ -15,6 +15,7 @@ mod contract;
 mod correlation;
 mod dashboard_previews;
 mod dashboard_routes;
+mod deploy_scale;
 mod elastiface_inputs;
 mod fuzz_multipart;
 mod http;
