@@ -7,11 +7,11 @@
 //!   A completes, stores its outputs under `a1/` (counted), its finish is refused, and it deletes
 //!   them; B's `a2/` files and the record are untouched;
 //! - as processes: replica A is frozen (`SIGSTOP`) in the middle of a job, so its heartbeats stop;
-//! its lease runs out, replica B reclaims the job and commits it (attempt 2). A is then thawed
-//! (`SIGCONT`) and carries on with the job it no longer holds: the store refuses its finish (or
-//! its next heartbeat reports the lease lost), and it deletes whatever it wrote under its own
-//! attempt's folder. Attempt 2's files, read back from the S3 bucket, keep the size and SHA-256
-//! of the record; attempt 1 leaves nothing behind; A lives on and runs the next job.
+//!   its lease runs out, replica B reclaims the job and commits it (attempt 2). A is then thawed
+//!   (`SIGCONT`) and carries on with the job it no longer holds: the store refuses its finish (or
+//!   its next heartbeat reports the lease lost), and it deletes whatever it wrote under its own
+//!   attempt's folder. Attempt 2's files, read back from the S3 bucket, keep the size and SHA-256
+//!   of the record; attempt 1 leaves nothing behind; A lives on and runs the next job.
 //!
 //! Needs the throw-away servers of `pg_server` and `s3_server` (ignored by default; CI runs
 //! them).
