@@ -77,3 +77,41 @@ fn bench_pg_claim_latency_and_throughput() {
         );
     }
 }
+
+/// Status polls on the API replica while two worker replicas are saturated (Spot at 8192², six
+/// jobs: two running, four queued): `wrk -t2 -c32 -d15s --latency` on `GET /v1/jobs/{id}`
+/// (Debian's `wrk`). Prints wrk's report.
+#[test]
+#[ignore = "benchmark; needs PostgreSQL binaries and wrk"]
+fn bench_pg_polls_with_saturated_workers() {
+    let url = fresh_url();
+    let data = tempfile::tempdir().unwrap();
+    let (_api, api) = spawn_role(data.path(), &url, "api", &[]);
+    let workers: Vec<_> = (0..2)
+        .map(|_| spawn_role(data.path(), &url, "worker", &[]))
+        .collect();
+    let parts = spot_parts(8192);
+    let ids: Vec<String> = (0..6)
+        .map(|_| {
+            let r = submit(&api, &parts, &[]);
+            assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+            r.json()["id"].as_str().unwrap().to_string()
+        })
+        .collect();
+    for (_, base) in &workers {
+        crate::pg_kill::wait_busy(base);
+    }
+    let out = std::process::Command::new("wrk")
+        .args(["-t2", "-c32", "-d15s", "--latency"])
+        .arg(format!("{api}/v1/jobs/{}", ids[0]))
+        .output()
+        .expect("run wrk (apt-get install wrk)");
+    assert!(out.status.success());
+    let report = String::from_utf8_lossy(&out.stdout);
+    println!("{report}");
+    let busy: u64 = workers
+        .iter()
+        .map(|(_, b)| crate::pg_kill::busy_workers(b))
+        .sum();
+    assert_eq!(busy, 2, "both workers stayed busy during the measurement");
+}
