@@ -280,3 +280,59 @@ fn an_object_store_prefix_scopes_every_operation() {
     b.delete_prefix("j").unwrap();
     assert!(missing(b.get("jobs/x/r")));
 }
+
+/// Retention on S3: deleting a job through the API and the TTL sweep remove every object of
+/// that job (inputs and outputs) and nothing of another job.
+#[test]
+#[ignore = "needs moto[server] (python3 -m pip install 'moto[server]')"]
+fn deleting_and_pruning_jobs_removes_their_objects_from_the_bucket() {
+    use crate::service_common::*;
+    let bucket = Arc::new(crate::s3_server::fresh_bucket());
+    let spools = spool();
+    let (bk, dir) = (bucket.clone(), spools.path().join("server"));
+    let s = TestServer::start_wrapped(
+        |c| c.ttl_secs = 1,
+        move |jobs, _| (jobs, Arc::new(bk.open(&dir)) as Arc<dyn BlobStore>),
+    );
+    let store = bucket.open(&spools.path().join("check"));
+    let ids: Vec<String> = (0..3)
+        .map(|_| {
+            let r = submit(&s.base, &spot_parts(64), &[]);
+            assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+            r.json()["id"].as_str().unwrap().to_string()
+        })
+        .collect();
+    let mut keys = Vec::new();
+    for id in &ids {
+        let doc = wait_for(&s.base, id, std::time::Duration::from_secs(120), terminal);
+        assert_eq!(doc["status"], "succeeded", "{doc}");
+        let job = s.state.jobs.get(id.parse().unwrap()).unwrap().unwrap();
+        let mut mine: Vec<String> = job.artifacts.iter().map(|a| a.key.clone()).collect();
+        mine.push(job.inputs.constraints.clone());
+        mine.push(format!(
+            "jobs/{id}/inputs/target/{}",
+            job.inputs.target.main
+        ));
+        for k in &mine {
+            assert!(store.len(k).is_ok(), "{k} is in the bucket");
+        }
+        keys.push(mine);
+    }
+    let gone = |ks: &[String]| ks.iter().all(|k| missing(store.len(k)));
+    let del = request(
+        "DELETE",
+        &format!("{}/v1/jobs/{}", s.base, ids[0]),
+        &[],
+        None,
+    );
+    assert!(del.status == 204 || del.status == 200, "{}", del.status);
+    assert!(gone(&keys[0]), "the deleted job's objects are gone");
+    assert!(!gone(&keys[1]) && !gone(&keys[2]));
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let removed = retex::service::http::ops::prune_once(&s.state).unwrap();
+    assert_eq!(removed, 2);
+    assert!(
+        gone(&keys[1]) && gone(&keys[2]),
+        "pruned jobs' objects are gone"
+    );
+}
