@@ -214,6 +214,41 @@ pub struct Recovery {
     pub failed: Vec<Uuid>,
 }
 
+impl Recovery {
+    /// Settles one job whose claim ended without a finish (found processing at start-up, or its
+    /// lease expired): back to the queue with its progress cleared, or failed with
+    /// `/problems/too-many-attempts` once it was started `max_attempts` times; the revision is
+    /// bumped and the job's id noted in `requeued` or `failed`. The one transition every store
+    /// applies inside its own transaction.
+    pub fn settle(&mut self, job: &mut JobRecord, max_attempts: u32, now: DateTime<Utc>) {
+        if job.attempts >= max_attempts {
+            job.status = JobStatus::Failed;
+            job.finished_at = Some(now);
+            job.error = Some(too_many_attempts(job.attempts, max_attempts));
+            self.failed.push(job.id);
+        } else {
+            job.status = JobStatus::Enqueued;
+            job.progress = JobProgress::default();
+            self.requeued.push(job.id);
+        }
+        job.revision += 1;
+    }
+}
+
+/// The error of a job that recovery fails after `attempts` interrupted starts.
+fn too_many_attempts(attempts: u32, max_attempts: u32) -> Problem {
+    Problem {
+        kind: "/problems/too-many-attempts".into(),
+        title: "the job was interrupted too many times".into(),
+        status: 500,
+        detail: format!(
+            "the job was started {attempts} times and interrupted each time (server stopped or crashed); the limit is {max_attempts}"
+        ),
+        field: None,
+        limit: Some(max_attempts.into()),
+    }
+}
+
 /// Counts for metrics.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct StatusCounts {

@@ -52,8 +52,7 @@ use tokio_postgres::{GenericClient, NoTls, Transaction};
 use uuid::Uuid;
 
 use super::sqlite::{
-    conflict, decode_cursor, encode_cursor, from_nanos, nanos, too_many_attempts, DEFAULT_PAGE,
-    MAX_PAGE,
+    conflict, decode_cursor, encode_cursor, from_nanos, nanos, DEFAULT_PAGE, MAX_PAGE,
 };
 use super::{
     ChangeSink, CreateOutcome, Finish, JobStore, Lease, ListFilter, ListPage, Recovery,
@@ -281,17 +280,7 @@ impl PgJobStore {
                 for row in rows {
                     let mut job: JobRecord =
                         serde_json::from_str(row.get::<_, &str>(0)).map_err(json_error)?;
-                    if job.attempts >= max_attempts {
-                        job.status = JobStatus::Failed;
-                        job.finished_at = Some(now);
-                        job.error = Some(too_many_attempts(job.attempts, max_attempts));
-                        out.failed.push(job.id);
-                    } else {
-                        job.status = JobStatus::Enqueued;
-                        job.progress = JobProgress::default();
-                        out.requeued.push(job.id);
-                    }
-                    job.revision += 1;
+                    out.settle(&mut job, max_attempts, now);
                     update_record(tx, &job, &owner).await?;
                 }
                 Ok(out)

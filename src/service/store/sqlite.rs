@@ -35,7 +35,7 @@ use uuid::Uuid;
 use super::{
     CreateOutcome, Finish, JobStore, ListFilter, ListPage, Recovery, StatusCounts, StoreError,
 };
-use crate::service::model::{JobProgress, JobRecord, JobStatus, Problem};
+use crate::service::model::{JobProgress, JobRecord, JobStatus};
 
 /// Schema version this code writes.
 const SCHEMA_VERSION: i64 = 1;
@@ -316,20 +316,6 @@ pub(super) fn decode_cursor(cursor: &str) -> Result<(i64, String), StoreError> {
     Ok((t, id.to_string()))
 }
 
-/// The error of a job that recovery fails after `attempts` interrupted starts.
-pub(super) fn too_many_attempts(attempts: u32, max_attempts: u32) -> Problem {
-    Problem {
-        kind: "/problems/too-many-attempts".into(),
-        title: "the job was interrupted too many times".into(),
-        status: 500,
-        detail: format!(
-            "the job was started {attempts} times and interrupted each time (server stopped or crashed); the limit is {max_attempts}"
-        ),
-        field: None,
-        limit: Some(max_attempts.into()),
-    }
-}
-
 pub(super) fn conflict(job: &JobRecord, what: &'static str) -> StoreError {
     StoreError::Conflict {
         id: job.id,
@@ -544,17 +530,7 @@ impl JobStore for SqliteJobStore {
             let mut out = Recovery::default();
             for json in records {
                 let mut job: JobRecord = serde_json::from_str(&json)?;
-                if job.attempts >= max_attempts {
-                    job.status = JobStatus::Failed;
-                    job.finished_at = Some(now);
-                    job.error = Some(too_many_attempts(job.attempts, max_attempts));
-                    out.failed.push(job.id);
-                } else {
-                    job.status = JobStatus::Enqueued;
-                    job.progress = JobProgress::default();
-                    out.requeued.push(job.id);
-                }
-                job.revision += 1;
+                out.settle(&mut job, max_attempts, now);
                 update_record(tx, &job)?;
             }
             Ok(out)
