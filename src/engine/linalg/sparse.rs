@@ -46,16 +46,24 @@ impl SparsityPattern {
                 }
             }
         }
-        let cols: Vec<Vec<usize>> = cols
-            .into_par_iter()
-            .enumerate()
-            .map(|(j, mut rows)| {
-                rows.push(j);
-                rows.sort_unstable();
-                rows.dedup();
-                rows
-            })
-            .collect();
+        Ok(Self::from_sorted_columns(with_sorted_diagonal(cols)))
+    }
+
+    /// Builds a pattern from per-column row lists that are already symmetric (each `(i, j)` with
+    /// its `(j, i)`), in any order, duplicates allowed: the diagonal is added, nothing else.
+    ///
+    /// # Errors
+    /// [`LinalgError::InvalidPattern`] when a row index is `>= columns.len()`.
+    pub(crate) fn from_symmetric_columns(columns: Vec<Vec<usize>>) -> Result<Self, LinalgError> {
+        let n = columns.len();
+        let cols = with_sorted_diagonal(columns);
+        for (j, rows) in cols.iter().enumerate() {
+            if let Some(&i) = rows.last().filter(|&&i| i >= n) {
+                return Err(LinalgError::InvalidPattern(format!(
+                    "row {i} in column {j} is out of range for {n} columns"
+                )));
+            }
+        }
         Ok(Self::from_sorted_columns(cols))
     }
 
@@ -115,6 +123,19 @@ impl SparsityPattern {
     pub fn as_faer(&self) -> SymbolicSparseColMatRef<'_, usize> {
         SymbolicSparseColMatRef::new_checked(self.n, self.n, &self.col_ptr, None, &self.row_idx)
     }
+}
+
+/// Each column with its diagonal added, sorted and deduplicated (in parallel over columns).
+fn with_sorted_diagonal(cols: Vec<Vec<usize>>) -> Vec<Vec<usize>> {
+    cols.into_par_iter()
+        .enumerate()
+        .map(|(j, mut rows)| {
+            rows.push(j);
+            rows.sort_unstable();
+            rows.dedup();
+            rows
+        })
+        .collect()
 }
 
 /// A symmetric sparse matrix: a shared [`SparsityPattern`] and one value per stored entry.

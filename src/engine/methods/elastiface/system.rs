@@ -189,29 +189,14 @@ impl PatternBuilder {
     /// The finished pattern: columns sorted and deduplicated in parallel, symmetrised only when
     /// [`Self::clique_row`] was used.
     pub fn build(self) -> Result<Arc<SparsityPattern>, MethodError> {
-        let n = self.cols.len();
-        if self.one_sided {
-            return SparsityPattern::from_columns(&self.cols)
-                .map(Arc::new)
-                .map_err(|e| MethodError::Internal(format!("pattern: {e}")));
-        }
-        let cols: Vec<Vec<usize>> = self
-            .cols
-            .into_par_iter()
-            .enumerate()
-            .map(|(j, mut rows)| {
-                rows.push(j);
-                rows.sort_unstable();
-                rows.dedup();
-                rows
-            })
-            .collect();
-        if let Some(bad) = cols.iter().flatten().find(|&&i| i >= n) {
-            return Err(MethodError::Internal(format!(
-                "pattern: row {bad} out of range for {n} columns"
-            )));
-        }
-        Ok(Arc::new(SparsityPattern::from_sorted_columns(cols)))
+        let pattern = if self.one_sided {
+            SparsityPattern::from_columns(&self.cols)
+        } else {
+            SparsityPattern::from_symmetric_columns(self.cols)
+        };
+        pattern
+            .map(Arc::new)
+            .map_err(|e| MethodError::Internal(format!("pattern: {e}")))
     }
 }
 
