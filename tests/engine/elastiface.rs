@@ -294,11 +294,12 @@ fn bump_case(name: &str, max_hausdorff: f64) {
     let (base_mean, base_max) = map_error(&pair.source, &snapping_baseline(&pair), pair.diagonal);
     let h = r["hausdorff"]["max"].as_f64().unwrap();
     let flipped = r["flipped"]["area_fraction"].as_f64().unwrap();
+    let turned = r["turned_over"]["area_fraction"].as_f64().unwrap();
     let res = r["residuals"]["max"].as_f64().unwrap();
     let psnr = relaid_psnr(&pair.source, &out);
     eprintln!(
         "bump: psnr {psnr:.2}; map error mean {mean:.5} max {max:.5}; snapping mean {base_mean:.5} max {base_max:.5}; {} \
-         hausdorff {h:.5}; flipped {flipped:.2e}; residual max {res:.5}; timings {}",
+         hausdorff {h:.5}; flipped {flipped:.2e}; turned over {turned:.2e}; residual max {res:.5}; timings {}",
         r["hausdorff"],
         stage_timings(&out.report.timings)
     );
@@ -330,6 +331,7 @@ fn bump_case(name: &str, max_hausdorff: f64) {
     );
     assert!(h < max_hausdorff, "hausdorff {h}");
     assert!(flipped < 1e-4, "flipped area {flipped}");
+    assert!(turned < 1e-4, "turned-over area {turned}");
     assert!(res < 0.01, "correspondence residual {res}");
     assert!(psnr > 28.0, "re-laid texture psnr {psnr}");
 }

@@ -135,6 +135,9 @@ pub struct ElastifaceReport {
     pub hausdorff: metrics::Hausdorff,
     /// Flipped triangles of the fitted source.
     pub flipped: metrics::Flipped,
+    /// Triangles of the fitted source turned over against the template (after the initial
+    /// similarity): folds that `flipped` cannot see.
+    pub turned_over: metrics::Flipped,
     /// Correspondence residuals of the fitted source (relative to the target diagonal).
     pub residuals: metrics::Residuals,
     /// Output mode.
@@ -275,6 +278,7 @@ pub fn run(
 struct Quality {
     hausdorff: metrics::Hausdorff,
     flipped: metrics::Flipped,
+    turned_over: metrics::Flipped,
     residuals: metrics::Residuals,
 }
 
@@ -297,6 +301,7 @@ fn measure(call: &Call<'_>, p: &Prepared, fit: &fit::Fit) -> Result<Quality, Met
     Ok(Quality {
         hausdorff: metrics::hausdorff(&fitted_mesh, &target_mesh, ref_diag),
         flipped: metrics::flipped(&fitted_mesh, &target_mesh),
+        turned_over: metrics::turned_over(&fitted_mesh, &p.xs),
         residuals: metrics::residuals(&p.hand, &fit.fitted, &p.xt, ref_diag),
     })
 }
@@ -329,6 +334,7 @@ fn report(
         registration_originals: fit.registration_originals,
         hausdorff: quality.hausdorff,
         flipped: quality.flipped,
+        turned_over: quality.turned_over,
         residuals: quality.residuals,
         output: params.output,
         blend_weight: params.blend.as_ref().map(|b| b.weight),
