@@ -19,10 +19,14 @@
 //! Missing (see README "detail"): the synthesis (§3.3), the texture-space refinement, the
 //! outputs, and the method's registration.
 
+pub mod blend;
 pub mod displacement;
 pub mod geometric_features;
 pub mod hierarchy;
 pub mod metric;
+mod patch_match;
 pub mod patches;
 pub mod segmentation;
 pub mod steerable;
+pub mod sweep;
+pub mod synthesis;
