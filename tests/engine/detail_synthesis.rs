@@ -356,3 +356,83 @@ fn learned_and_identity_metrics_put_detail_on_the_treads_random_patches_do_not()
         "learned vs random patches {ratios:?}"
     );
 }
+
+#[test]
+fn bad_input_and_cancellation_are_errors_not_panics() {
+    use retex::engine::methods::detail::synthesis::SynthesisError;
+    let s = icosphere(1.0, 3);
+    let nv = s.vertex_count();
+    let (d, f) = (vec![0.01; nv], vec![0.0; nv * 2]);
+    let src = [SourceLevel {
+        surface: &s,
+        displacement: &d,
+        features: &f,
+    }];
+    let tgt = [TargetLevel {
+        surface: &s,
+        features: &f,
+    }];
+    let p = SynthesisParams::default();
+    let c = Control::new();
+    // Works (constant displacement, r = 2), and r = 0 is accepted.
+    let out = synthesize(&src, &tgt, 2, &p, &c).unwrap();
+    assert!(out.displacement[0].iter().all(|x| (x - 0.01).abs() < 1e-12));
+    let empty_f: Vec<f64> = Vec::new();
+    let src0 = [SourceLevel {
+        features: &empty_f,
+        ..src[0]
+    }];
+    let tgt0 = [TargetLevel {
+        features: &empty_f,
+        ..tgt[0]
+    }];
+    assert!(synthesize(&src0, &tgt0, 0, &p, &c).is_ok());
+    // Wrong widths, level counts, empty surfaces, NaN, bad parameters.
+    assert!(matches!(
+        synthesize(&src, &tgt, 3, &p, &c),
+        Err(SynthesisError::Shape { .. })
+    ));
+    assert!(matches!(
+        synthesize(&src, &[], 2, &p, &c),
+        Err(SynthesisError::Param(_))
+    ));
+    let nothing = Surface::from_triangles(vec![[0.0; 3]; 3], vec![]);
+    let tgt_e = [TargetLevel {
+        surface: &nothing,
+        features: &f[..6],
+    }];
+    assert!(matches!(
+        synthesize(&src, &tgt_e, 2, &p, &c),
+        Err(SynthesisError::Empty { .. })
+    ));
+    let mut dn = d.clone();
+    dn[3] = f64::NAN;
+    let src_n = [SourceLevel {
+        displacement: &dn,
+        ..src[0]
+    }];
+    assert!(matches!(
+        synthesize(&src_n, &tgt, 2, &p, &c),
+        Err(SynthesisError::NonFinite { .. })
+    ));
+    let bad = SynthesisParams {
+        initial_patch_size: 0,
+        ..SynthesisParams::default()
+    };
+    assert!(matches!(
+        synthesize(&src, &tgt, 2, &bad, &c),
+        Err(SynthesisError::Param(_))
+    ));
+    // Degenerate (all vertices at one point): an error, not a panic.
+    let flat = Surface::from_triangles(vec![[1.0; 3]; nv], s.faces.clone());
+    let src_flat = [SourceLevel {
+        surface: &flat,
+        ..src[0]
+    }];
+    assert!(synthesize(&src_flat, &tgt, 2, &p, &c).is_err());
+    c.cancel();
+    assert!(matches!(
+        synthesize(&src, &tgt, 2, &p, &c),
+        Err(SynthesisError::Cancelled)
+    ));
+}
