@@ -423,6 +423,16 @@ fn bad_input_and_cancellation_are_errors_not_panics() {
         synthesize(&src, &tgt, 2, &bad, &c),
         Err(SynthesisError::Param(_))
     ));
+    let mut broken = s.clone();
+    broken.faces[0][2] = nv as u32 + 5;
+    let tgt_b = [TargetLevel {
+        surface: &broken,
+        ..tgt[0]
+    }];
+    assert!(matches!(
+        synthesize(&src, &tgt_b, 2, &p, &c),
+        Err(SynthesisError::Empty { .. })
+    ));
     // Degenerate (all vertices at one point): an error, not a panic.
     let flat = Surface::from_triangles(vec![[1.0; 3]; nv], s.faces.clone());
     let src_flat = [SourceLevel {

@@ -123,8 +123,8 @@ pub enum SynthesisError {
         /// Level.
         level: usize,
     },
-    /// A level has no faces.
-    #[error("level {level} of the {shape} has no faces")]
+    /// A level has no faces, a non-finite position, a face index out of range, or no extent.
+    #[error("level {level} of the {shape} has no usable faces")]
     Empty {
         /// `source` or `target`.
         shape: &'static str,
@@ -234,7 +234,9 @@ fn validate(
     for (l, (s, t)) in source.iter().zip(target).enumerate() {
         for (shape, surface) in [("source", s.surface), ("target", t.surface)] {
             let finite = surface.positions.iter().flatten().all(|x| x.is_finite());
-            if surface.faces.is_empty() || !finite || mean_edge_length(surface) <= 0.0 {
+            let nv = surface.vertex_count();
+            let indexed = surface.faces.iter().flatten().all(|&v| (v as usize) < nv);
+            if surface.faces.is_empty() || !finite || !indexed || mean_edge_length(surface) <= 0.0 {
                 return Err(SynthesisError::Empty { shape, level: l });
             }
         }
