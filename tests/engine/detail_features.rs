@@ -1,5 +1,6 @@
 //! The `detail` method's per-vertex features (Berkiten et al. 2017, §3.2.1-3.2.2) and the metric
-//! learning on them: one module of the engine tests holding the three test files.
+//! learning on them, and the synthesis (§3.3.1) fed by them: one module of the engine tests
+//! holding the four test files.
 
 #[path = "detail_geometric.rs"]
 mod geometric;
@@ -7,3 +8,5 @@ mod geometric;
 mod metric_features;
 #[path = "detail_patches.rs"]
 mod patches;
+#[path = "detail_synthesis.rs"]
+mod synthesis;

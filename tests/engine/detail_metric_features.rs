@@ -20,7 +20,13 @@ use retex::engine::methods::detail::steerable::FEATURES;
 /// `steps` tiers (tread `run`, riser `rise`, both in the profile's (z, y) plane), extruded over
 /// `width` along x; spacing `h`. Returns the surface, whether each vertex is on a tread
 /// (strictly inside it, corners excluded), and its distance to the strip's border.
-fn tiers(steps: usize, run: f64, rise: f64, width: f64, h: f64) -> (Surface, Vec<bool>, Vec<f64>) {
+pub(super) fn tiers(
+    steps: usize,
+    run: f64,
+    rise: f64,
+    width: f64,
+    h: f64,
+) -> (Surface, Vec<bool>, Vec<f64>) {
     // Profile points: up the riser, then along the tread.
     let mut profile: Vec<([f64; 2], bool)> = vec![([0.0, 0.0], false)];
     let (nr, nt) = ((rise / h).round() as usize, (run / h).round() as usize);

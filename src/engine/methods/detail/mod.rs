@@ -15,14 +15,23 @@
 //! - [`geometric_features`] (§3.2.2): the 60-D geometric feature vector per vertex, HKS / WKS
 //!   at scales shared by a source and a target; [`segmentation`] the SDF segments it measures
 //!   boundary distances to.
+//! - [`synthesis`] (§3.3.1, Algorithms 1-2, eqs. 5-7): the displacement of every target level,
+//!   coarse to fine, from the source levels' displacements and both shapes' transformed
+//!   features; [`sweep`] the sweep order and source sampling, [`blend`] eqs. 5-7, and the
+//!   private `patch_match` the patches, the two-step matching and SYNTHESIZE-LEVEL.
 //!
-//! Missing (see README "detail"): the synthesis (§3.3), the texture-space refinement, the
+//! Missing (see README "detail"): wiring the pieces into one pipeline (hierarchy → displacement
+//! per level → features → metric → synthesis), the texture-space refinement (§3.3.2), the
 //! outputs, and the method's registration.
 
+pub mod blend;
 pub mod displacement;
 pub mod geometric_features;
 pub mod hierarchy;
 pub mod metric;
+mod patch_match;
 pub mod patches;
 pub mod segmentation;
 pub mod steerable;
+pub mod sweep;
+pub mod synthesis;

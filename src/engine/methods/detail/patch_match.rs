@@ -1,0 +1,474 @@
+//! SYNTHESIZE-LEVEL (Berkiten et al. 2017, §3.3.1, Algorithm 2): source patches around evenly
+//! spread source vertices, then, per target vertex in sweep order, the two-step matching and
+//! the blending of the chosen patch.
+//!
+//! **Patches.** A patch is the discrete exponential map around its centre
+//! ([`crate::engine::geometry::expmap`], the charts [`super::patches`] samples), in the same
+//! frames (`u` = `(1, 0, 0)` projected, `v = n × u`), rasterised into a square grid with one
+//! step per level (`step`, world units): cell `k` sits at `(k − (side − 1)/2)·step`. Each cell
+//! records the face it falls in and its barycentric weights; its *vertex* is the corner with the
+//! largest weight. A target patch has side `n`; a source patch side `n + 2s` (`s` the shift
+//! range) and stores per cell the barycentric displacement and the vertex; cells outside every
+//! mapped face (past a border) are invalid and never compared or copied.
+//!
+//! **Matching.** Step 1 (features): for every source patch and every integer shift
+//! `(dx, dy) ∈ [−s, s]²` (the translational refinement), the mean squared transformed-feature
+//! distance over an `m × m` sub-grid of the target patch (`m = min(n, feature_grid)`, evenly
+//! spaced cells; features vary slowly, so a sub-grid keeps the cost at `O(S · (2s+1)² · m² · r)`
+//! per patch) against the source cells under it; a shift covering fewer than half of the
+//! target's valid sub-grid cells is rejected. The `K` best (distance, ties by sample index)
+//! are the candidates, parallel over samples. Step 2 (detail): for each candidate and each shift,
+//! the mean squared difference between the target's shown displacement and the source patch over
+//! all valid cells, weighted by the target's matching confidence
+//! ([`super::blend::Blend::context_weight`]: the current pass's `w_disp`, capped at 1, and the
+//! base's confidence); the lowest wins. Where the target has no context yet (all weights 0) the
+//! feature-best candidate is taken.
+//!
+//! **Blending.** Every target vertex of the chart inside the square `|x|, |y| ≤ n/2` (grid
+//! steps) gets the source displacement bilinearly interpolated at its chart position (shifted),
+//! blended with `w_loc = f(‖x‖ / (n/√2))` (eqs. 5-7, [`super::blend`]).
+
+use rayon::prelude::*;
+
+use super::blend::{location_weight, Blend};
+use super::sweep::feature_dist2;
+use crate::engine::control::{Cancelled, StageProgress};
+use crate::engine::geometry::expmap::{
+    local_frames, mean_edge_length, ChartBuilder, Connection, ExpMapParams, FrameParams, RadiusUnit,
+};
+use crate::engine::mesh::csr::vertex_faces;
+use crate::engine::mesh::Surface;
+
+const NONE: u32 = u32::MAX;
+
+/// What the charts of one shape share.
+pub(super) struct Charts<'a> {
+    surface: &'a Surface,
+    connection: Connection,
+    vf_offsets: Vec<u32>,
+    vf_faces: Vec<u32>,
+    mean_edge: f32,
+}
+
+impl<'a> Charts<'a> {
+    pub(super) fn new(surface: &'a Surface) -> Self {
+        let frames = local_frames(
+            surface,
+            &FrameParams {
+                up: Some([1.0, 0.0, 0.0]),
+                min_up_projection: 0.1,
+            },
+        );
+        let (vf_offsets, vf_faces) = vertex_faces(surface);
+        Charts {
+            surface,
+            connection: Connection::new(surface, &frames),
+            vf_offsets,
+            vf_faces,
+            mean_edge: mean_edge_length(surface),
+        }
+    }
+
+    pub(super) fn scratch(&self) -> Scratch {
+        Scratch {
+            builder: ChartBuilder::new(self.surface.vertex_count()),
+            slot: vec![NONE; self.surface.vertex_count()],
+            vertex: Vec::new(),
+            coords: Vec::new(),
+            face: Vec::new(),
+            bary: Vec::new(),
+        }
+    }
+
+    /// Rasterises the chart of `centre` into a `side × side` grid of step `step` (see the module
+    /// doc); the chart's vertices and coordinates stay in the scratch.
+    fn raster(&self, centre: usize, side: usize, step: f64, s: &mut Scratch) {
+        let half = (side as f64 - 1.0) / 2.0;
+        let radius = ((half + 1.0) * step * std::f64::consts::SQRT_2) as f32 + 2.0 * self.mean_edge;
+        let params = ExpMapParams {
+            radius,
+            radius_unit: RadiusUnit::World,
+            ..ExpMapParams::default()
+        };
+        let chart = s.builder.build(&self.connection, centre, radius, &params);
+        s.vertex.clear();
+        s.vertex.extend_from_slice(chart.vertex);
+        s.coords.clear();
+        s.coords.extend_from_slice(chart.coords);
+        s.face.clear();
+        s.face.resize(side * side, NONE);
+        s.bary.clear();
+        s.bary.resize(side * side, [0.0; 3]);
+        for (i, &v) in s.vertex.iter().enumerate() {
+            s.slot[v as usize] = i as u32;
+        }
+        let to_grid = |c: [f32; 2]| [c[0] as f64 / step + half, c[1] as f64 / step + half];
+        for (i, &v) in s.vertex.iter().enumerate() {
+            let range =
+                self.vf_offsets[v as usize] as usize..self.vf_offsets[v as usize + 1] as usize;
+            for &f in &self.vf_faces[range] {
+                let corners = self.surface.faces[f as usize];
+                let slots = corners.map(|c| s.slot[c as usize]);
+                // Each face once: from its corner with the lowest chart slot.
+                if slots.contains(&NONE) || slots.iter().min() != Some(&(i as u32)) {
+                    continue;
+                }
+                let pts = slots.map(|k| to_grid(s.coords[k as usize]));
+                rasterise(pts, f, side, &mut s.face, &mut s.bary);
+            }
+        }
+        for &v in &s.vertex {
+            s.slot[v as usize] = NONE;
+        }
+    }
+}
+
+/// Scratch of one worker.
+pub(super) struct Scratch {
+    builder: ChartBuilder,
+    slot: Vec<u32>,
+    vertex: Vec<u32>,
+    coords: Vec<[f32; 2]>,
+    face: Vec<u32>,
+    bary: Vec<[f32; 3]>,
+}
+
+/// Records `face` and the barycentric weights at every free grid point inside `pts`.
+fn rasterise(pts: [[f64; 2]; 3], face: u32, n: usize, faces: &mut [u32], bary: &mut [[f32; 3]]) {
+    let [a, b, c] = pts;
+    let area = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
+    if area.abs() < 1e-12 || !area.is_finite() {
+        return;
+    }
+    let lo = |k: usize| pts.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
+    let hi = |k: usize| pts.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max);
+    let top = n as f64 - 1.0;
+    if hi(0) < 0.0 || hi(1) < 0.0 || lo(0) > top || lo(1) > top {
+        return;
+    }
+    let clamp = |x: f64| x.clamp(0.0, top) as usize;
+    let eps = 1e-9;
+    for iy in clamp(lo(1).ceil())..=clamp(hi(1).floor()) {
+        for ix in clamp(lo(0).ceil())..=clamp(hi(0).floor()) {
+            let k = iy * n + ix;
+            if faces[k] != NONE {
+                continue;
+            }
+            let (x, y) = (ix as f64, iy as f64);
+            let wa = ((b[0] - x) * (c[1] - y) - (c[0] - x) * (b[1] - y)) / area;
+            let wb = ((c[0] - x) * (a[1] - y) - (a[0] - x) * (c[1] - y)) / area;
+            let wc = 1.0 - wa - wb;
+            if wa >= -eps && wb >= -eps && wc >= -eps {
+                faces[k] = face;
+                bary[k] = [wa as f32, wb as f32, wc as f32];
+            }
+        }
+    }
+}
+
+/// The corner with the largest weight of each cell (`NONE` where uncovered).
+fn cell_vertices(surface: &Surface, s: &Scratch, out: &mut Vec<u32>) {
+    out.clear();
+    out.extend(s.face.iter().zip(&s.bary).map(|(&f, w)| {
+        if f == NONE {
+            return NONE;
+        }
+        let k = (0..3).fold(0, |b, k| if w[k] > w[b] { k } else { b });
+        surface.faces[f as usize][k]
+    }));
+}
+
+/// One source patch: per cell the vertex and the (normalised) displacement, NaN where invalid.
+pub(super) struct SourcePatch {
+    vertex: Vec<u32>,
+    disp: Vec<f32>,
+}
+
+/// Samples the source patches (side `side`) around `samples`, parallel.
+pub(super) fn source_patches(
+    charts: &Charts<'_>,
+    displacement: &[f64],
+    samples: &[usize],
+    side: usize,
+    step: f64,
+    stage: &StageProgress<'_>,
+) -> Result<Vec<SourcePatch>, Cancelled> {
+    samples
+        .par_iter()
+        .map_init(
+            || (charts.scratch(), Vec::new()),
+            |(scratch, cells), &c| {
+                charts.raster(c, side, step, scratch);
+                cell_vertices(charts.surface, scratch, cells);
+                let disp = (scratch.face.iter().zip(&scratch.bary))
+                    .map(|(&f, w)| {
+                        if f == NONE {
+                            return f32::NAN;
+                        }
+                        let corners = charts.surface.faces[f as usize];
+                        (0..3)
+                            .map(|k| w[k] as f64 * displacement[corners[k] as usize])
+                            .sum::<f64>() as f32
+                    })
+                    .collect();
+                stage.tick(1)?;
+                Ok(SourcePatch {
+                    vertex: cells.clone(),
+                    disp,
+                })
+            },
+        )
+        .collect()
+}
+
+/// How a pass chooses its patches.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Choice {
+    /// The two-step matching (the paper's).
+    Matched,
+    /// A uniformly random source patch, no shift (a baseline for tests), seeded.
+    Random(u64),
+}
+
+/// Everything a pass of one level reads.
+pub(super) struct Level<'a> {
+    pub target: &'a Charts<'a>,
+    pub target_features: &'a [f64],
+    pub source_features: &'a [f64],
+    pub patches: &'a [SourcePatch],
+    pub r: usize,
+    pub n: usize,
+    pub step: f64,
+    pub shift: usize,
+    pub candidates: usize,
+    pub feature_grid: usize,
+    pub choice: Choice,
+}
+
+/// What a pass did.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct PassStats {
+    /// Patches blended.
+    pub patches: usize,
+    /// Vertices skipped (`w_disp > 0.5`).
+    pub skipped: usize,
+    /// Patches where step 2 chose another candidate than step 1's best.
+    pub step2_changed: usize,
+    /// Patches chosen without any synthesised context (step 1's best).
+    pub without_context: usize,
+}
+
+impl Level<'_> {
+    fn side(&self) -> usize {
+        self.n + 2 * self.shift
+    }
+
+    fn shifts(&self) -> impl Iterator<Item = (isize, isize)> + Clone {
+        let s = self.shift as isize;
+        (-s..=s).flat_map(move |dy| (-s..=s).map(move |dx| (dx, dy)))
+    }
+
+    /// Source cell under target cell `(ix, iy)` shifted by `(dx, dy)`.
+    fn source_cell(&self, ix: usize, iy: usize, (dx, dy): (isize, isize)) -> usize {
+        let s = self.shift as isize;
+        let (x, y) = (ix as isize + s + dx, iy as isize + s + dy);
+        y as usize * self.side() + x as usize
+    }
+
+    /// Step 1 for one source patch: the best (distance, shift) over the shifts.
+    fn feature_match(&self, sub: &[(usize, usize, u32)], p: &SourcePatch) -> (f64, (isize, isize)) {
+        let r = self.r;
+        let mut best = (f64::INFINITY, (0, 0));
+        for sh in self.shifts() {
+            let (mut sum, mut count) = (0.0, 0usize);
+            for &(ix, iy, tv) in sub {
+                let sv = p.vertex[self.source_cell(ix, iy, sh)];
+                if sv == NONE {
+                    continue;
+                }
+                let t = &self.target_features[tv as usize * r..(tv as usize + 1) * r];
+                let f = &self.source_features[sv as usize * r..(sv as usize + 1) * r];
+                sum += feature_dist2(t, f);
+                count += 1;
+            }
+            if count > 0 && 2 * count >= sub.len() && sum / (count as f64) < best.0 {
+                best = (sum / count as f64, sh);
+            }
+        }
+        best
+    }
+
+    /// Step 2 for one candidate: the best (score, shift) against the weighted context.
+    fn detail_match(
+        &self,
+        context: &[(usize, usize, f64, f64)],
+        p: &SourcePatch,
+    ) -> (f64, (isize, isize)) {
+        let mut best = (f64::INFINITY, (0, 0));
+        for sh in self.shifts() {
+            let (mut sum, mut wsum) = (0.0, 0.0);
+            for &(ix, iy, value, w) in context {
+                let d = p.disp[self.source_cell(ix, iy, sh)];
+                if d.is_nan() {
+                    continue;
+                }
+                sum += w * (value - d as f64).powi(2);
+                wsum += w;
+            }
+            if wsum > 0.0 && sum / wsum < best.0 {
+                best = (sum / wsum, sh);
+            }
+        }
+        best
+    }
+
+    /// The two-step choice for the target patch whose cell vertices are `cells`; `None` when no
+    /// source patch covers enough of it.
+    fn choose(
+        &self,
+        cells: &[u32],
+        blend: &Blend,
+        stats: &mut PassStats,
+    ) -> Option<(usize, (isize, isize))> {
+        let n = self.n;
+        let m = self.feature_grid.clamp(1, n);
+        let pick = |j: usize| {
+            if m == 1 {
+                n / 2
+            } else {
+                (j * (n - 1) + (m - 1) / 2) / (m - 1)
+            }
+        };
+        let sub: Vec<(usize, usize, u32)> = (0..m)
+            .flat_map(|b| (0..m).map(move |a| (pick(a), pick(b))))
+            .filter_map(|(ix, iy)| {
+                let tv = cells[iy * n + ix];
+                (tv != NONE).then_some((ix, iy, tv))
+            })
+            .collect();
+        let mut ranked: Vec<(f64, usize, (isize, isize))> = self
+            .patches
+            .par_iter()
+            .enumerate()
+            .map(|(i, p)| {
+                let (d, sh) = self.feature_match(&sub, p);
+                (d, i, sh)
+            })
+            .filter(|c| c.0.is_finite())
+            .collect();
+        let k = self.candidates.max(1).min(ranked.len());
+        if k == 0 {
+            return None;
+        }
+        if k < ranked.len() {
+            ranked.select_nth_unstable_by(k - 1, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            ranked.truncate(k);
+        }
+        ranked.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let context: Vec<(usize, usize, f64, f64)> = (0..n * n)
+            .filter_map(|c| {
+                let tv = cells[c] as usize;
+                let w = if cells[c] == NONE {
+                    0.0
+                } else {
+                    blend.context_weight(tv)
+                };
+                (w > 0.0).then(|| (c % n, c / n, blend.current(tv), w))
+            })
+            .collect();
+        if context.is_empty() {
+            stats.without_context += 1;
+            return Some((ranked[0].1, ranked[0].2));
+        }
+        let scored: Vec<(f64, (isize, isize))> = ranked
+            .par_iter()
+            .map(|c| self.detail_match(&context, &self.patches[c.1]))
+            .collect();
+        let best = (0..k).fold(0, |b, i| if scored[i].0 < scored[b].0 { i } else { b });
+        if best != 0 {
+            stats.step2_changed += 1;
+        }
+        Some((ranked[best].1, scored[best].1))
+    }
+
+    /// Blends source patch `p` shifted by `sh` into the chart in `s` (see the module doc).
+    fn blend_patch(&self, s: &Scratch, p: &SourcePatch, sh: (isize, isize), blend: &mut Blend) {
+        let g = self.side();
+        let centre = (g as f64 - 1.0) / 2.0;
+        let half = self.n as f64 / 2.0;
+        for (&v, c) in s.vertex.iter().zip(&s.coords) {
+            let q = [c[0] as f64 / self.step, c[1] as f64 / self.step];
+            if q[0].abs() > half || q[1].abs() > half {
+                continue;
+            }
+            let x = (q[0] + centre + sh.0 as f64).clamp(0.0, g as f64 - 1.0);
+            let y = (q[1] + centre + sh.1 as f64).clamp(0.0, g as f64 - 1.0);
+            let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+            let (x1, y1) = ((x0 + 1).min(g - 1), (y0 + 1).min(g - 1));
+            let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+            let (mut sum, mut wsum) = (0.0, 0.0);
+            for (cx, cy, w) in [
+                (x0, y0, (1.0 - fx) * (1.0 - fy)),
+                (x1, y0, fx * (1.0 - fy)),
+                (x0, y1, (1.0 - fx) * fy),
+                (x1, y1, fx * fy),
+            ] {
+                let d = p.disp[cy * g + cx];
+                if w > 0.0 && !d.is_nan() {
+                    sum += w * d as f64;
+                    wsum += w;
+                }
+            }
+            if wsum > 1e-9 {
+                let dist = (q[0] * q[0] + q[1] * q[1]).sqrt();
+                blend.add(v as usize, sum / wsum, location_weight(dist, self.n));
+            }
+        }
+    }
+
+    /// One SYNTHESIZE-LEVEL pass over `order`.
+    pub(super) fn pass(
+        &self,
+        order: &[usize],
+        blend: &mut Blend,
+        rng: &mut u64,
+        stage: &StageProgress<'_>,
+    ) -> Result<PassStats, Cancelled> {
+        let mut stats = PassStats::default();
+        let mut scratch = self.target.scratch();
+        let mut cells = Vec::new();
+        for (i, &c) in order.iter().enumerate() {
+            if i % 32 == 31 {
+                stage.tick(32)?;
+            }
+            if blend.skip(c) {
+                stats.skipped += 1;
+                continue;
+            }
+            self.target.raster(c, self.n, self.step, &mut scratch);
+            cell_vertices(self.target.surface, &scratch, &mut cells);
+            let chosen = match self.choice {
+                Choice::Matched => self.choose(&cells, blend, &mut stats),
+                Choice::Random(_) if self.patches.is_empty() => None,
+                Choice::Random(_) => {
+                    Some(((splitmix(rng) % self.patches.len() as u64) as usize, (0, 0)))
+                }
+            };
+            if let Some((p, sh)) = chosen {
+                self.blend_patch(&scratch, &self.patches[p], sh, blend);
+                stats.patches += 1;
+            }
+        }
+        stage.tick((order.len() % 32) as u64)?;
+        Ok(stats)
+    }
+}
+
+/// SplitMix64 step.
+pub(super) fn splitmix(state: &mut u64) -> u64 {
+    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    let mut z = *state;
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
