@@ -143,7 +143,7 @@ async function readEvents(resp, onEvent) {
 // `resync` reloads it. Polling every LIST_POLL_MS only while the stream is down (retried every
 // STREAM_RETRY_MS). Ages and durations tick locally.
 const list = { cursors: [null], page: 0, timer: null, next: null, jobs: new Map(),
-  stream: null, retry: null, reload: null, clock: null, live: false, unknown: new Set() };
+  stream: null, retry: null, reload: null, clock: null, live: false, unknown: new Set(), seq: 0 };
 
 async function loadJobs() {
   const q = new URLSearchParams({ limit: PAGE_SIZE });
@@ -153,7 +153,11 @@ async function loadJobs() {
   if (method) q.set('method', method);
   const cursor = list.cursors[list.page];
   if (cursor) q.set('next', cursor);
+  // Only the newest request renders: an older one (another filter or page, e.g. the stream's
+  // `ready` reload still in flight when the filter changed) must not overwrite its rows.
+  const seq = ++list.seq;
   const page = await apiJson(`/v1/jobs?${q}`);
+  if (seq !== list.seq) return;
   list.next = page.next;
   renderJobs(page.jobs);
   $('page-newer').disabled = list.page === 0;
