@@ -3,6 +3,8 @@
 #![cfg(feature = "cli")]
 
 mod common;
+#[path = "engine/meshmatch_common.rs"]
+mod meshmatch_common;
 
 use common::planar_pattern;
 use common::*;
@@ -343,4 +345,57 @@ fn transfer_never_decodes_an_image_no_primitive_samples() {
     assert!(ok, "{stderr}");
     println!("peak resident set: {peak} bytes");
     assert!(peak < 300 << 20, "{peak}");
+}
+
+/// MeshMatch texture update (§5.3) through the CLI: a striped capsule whose second half was
+/// lengthened; the unmoved half is given as the copy region. The output must be validator-clean,
+/// the report must count the copied synthesis vertices, and the copied half must be the
+/// source's colour.
+#[test]
+fn meshmatch_texture_update_runs_through_the_cli() {
+    use meshmatch_common::{colored_points, update_copy_error, update_pair};
+    let dir =
+        std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("target/test-outputs/cli-update");
+    std::fs::create_dir_all(&dir).unwrap();
+    let pair = update_pair(2.0);
+    std::fs::write(dir.join("source.glb"), &pair.source).unwrap();
+    std::fs::write(dir.join("target.glb"), &pair.target).unwrap();
+    let constraints = serde_json::json!({"version": 1, "method": "meshmatch", "seed": 1,
+        "output": {"vertex_colors": true},
+        "params": {"samples": 4096, "vertex_color_samples": 20000,
+                   "update": {"copy": {"faces": [{"mesh": 0, "primitive": 0, "triangles": pair.unmoved}]}}}});
+    std::fs::write(dir.join("c.json"), constraints.to_string()).unwrap();
+    let out = dir.join("updated.glb");
+    let status = retex()
+        .args(["transfer", "--quiet", "--source"])
+        .arg(dir.join("source.glb"))
+        .arg("--target")
+        .arg(dir.join("target.glb"))
+        .arg("--constraints")
+        .arg(dir.join("c.json"))
+        .arg("--out")
+        .arg(&out)
+        .arg("--artifacts")
+        .arg(dir.join("artifacts"))
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let model = std::fs::read(&out).unwrap();
+    assert_validator_clean(&model, "cli_meshmatch_update.glb");
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("artifacts/report.json")).unwrap()).unwrap();
+    let r = &report["method_report"];
+    let (copied, total) = (
+        r["copied_samples"].as_u64().unwrap(),
+        r["target_samples"].as_u64().unwrap(),
+    );
+    assert!(
+        copied > total / 5 && copied < total / 2,
+        "copied {copied} of {total}"
+    );
+    let (err, n) = update_copy_error(&colored_points(&model), 0.05, 0.9);
+    assert!(
+        n > 200 && err < 0.02,
+        "copied half: error {err} over {n} points"
+    );
 }

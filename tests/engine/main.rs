@@ -50,6 +50,7 @@ mod meshmatch_statistics;
 mod meshmatch_stripes;
 mod meshmatch_transfer;
 mod meshmatch_units;
+mod meshmatch_update;
 mod method_seam;
 mod multires_properties;
 mod pattern;

@@ -386,3 +386,186 @@ pub fn statistics_of_samples(source: &[[f32; 3]], output: &[[f32; 3]]) -> ColorS
         worst_ratio,
     }
 }
+
+/// Mean stripe period along the top line (y > 0.45, |z| < 0.12) of the x range [a, b], from the
+/// number of crossings of the mean grey level in 0.06-wide bins (the target has rings every 0.05).
+pub fn measured_period(points: &[([f32; 3], [f32; 3])], a: f32, b: f32) -> f32 {
+    let bins = ((b - a) / 0.06).round() as usize;
+    let mut sum = vec![0.0f32; bins];
+    let mut count = vec![0u32; bins];
+    for (p, c) in points {
+        if p[1] > 0.45 && p[2].abs() < 0.12 && p[0] >= a && p[0] < b {
+            let i = (((p[0] - a) / (b - a)) * bins as f32) as usize;
+            sum[i.min(bins - 1)] += (c[0] + c[1] + c[2]) / 3.0;
+            count[i.min(bins - 1)] += 1;
+        }
+    }
+    let signal: Vec<f32> = sum
+        .iter()
+        .zip(&count)
+        .filter(|(_, n)| **n > 0)
+        .map(|(s, n)| s / *n as f32)
+        .collect();
+    assert!(
+        signal.len() > bins / 2,
+        "only {} of {bins} bins sampled",
+        signal.len()
+    );
+    let mean = signal.iter().sum::<f32>() / signal.len() as f32;
+    // Crossings with a little hysteresis.
+    let mut crossings = 0;
+    let mut above = signal[0] > mean;
+    for &v in &signal {
+        if above && v < mean - 0.05 {
+            above = false;
+            crossings += 1;
+        } else if !above && v > mean + 0.05 {
+            above = true;
+            crossings += 1;
+        }
+    }
+    assert!(crossings >= 2, "no stripes in [{a}, {b}]: {signal:?}");
+    2.0 * (b - a) / crossings as f32
+}
+
+/// `from..=to` in steps of about `step` (the rings of a capsule's cylinder).
+pub fn profile(from: f32, to: f32, step: f32) -> Vec<f32> {
+    let n = ((to - from) / step).round() as usize;
+    (0..=n)
+        .map(|i| from + (to - from) * i as f32 / n as f32)
+        .collect()
+}
+
+/// Stripe period of the texture-update case (issue 14 item 5).
+pub const UPDATE_PERIOD: f32 = 0.5;
+
+/// Linear grey level of the texture-update source at x: soft-edged black and white ring stripes.
+pub fn update_stripe(x: f32) -> f32 {
+    let s = (std::f32::consts::TAU * x / UPDATE_PERIOD).sin();
+    0.05 + 0.85 * (0.5 + 0.5 * (4.0 * s).tanh())
+}
+
+/// The texture-update source's grey at x on its cylinder: COLOR_0 interpolated linearly between
+/// its rings, 0.05 apart.
+pub fn update_source_grey(x: f32) -> f32 {
+    let i = (x / 0.05).floor();
+    let t = x / 0.05 - i;
+    update_stripe(i * 0.05) * (1.0 - t) + update_stripe((i + 1.0) * 0.05) * t
+}
+
+/// The edit of the texture-update case: on a cylinder of `length`, the second half is stretched
+/// 2× and the right end carried along; the first half does not move.
+pub fn lengthen(x: f32, length: f32) -> f32 {
+    let half = 0.5 * length;
+    if x <= half {
+        x
+    } else if x <= length {
+        half + 2.0 * (x - half)
+    } else {
+        x + half
+    }
+}
+
+/// The texture-update case: a striped capsule (cylinder x ∈ [0, length], radius 0.5, rings every
+/// 0.05) and its edited copy ([`lengthen`], tessellated independently: rings every 0.025).
+pub struct UpdatePair {
+    /// The painted source (COLOR_0).
+    pub source: Vec<u8>,
+    /// The edited, unpainted target.
+    pub target: Vec<u8>,
+    /// Target triangles whose vertices all lie in the first half (the part that did not move).
+    pub unmoved: Vec<usize>,
+}
+
+/// Builds the [`UpdatePair`] for a cylinder of `length`.
+pub fn update_pair(length: f32) -> UpdatePair {
+    let (sp, st) = capsule(0.5, &profile(0.0, length, 0.05), 64, |x| x);
+    let colors: Vec<[f32; 4]> = sp
+        .iter()
+        .map(|p| {
+            let g = update_stripe(p[0]);
+            [g, g, g, 1.0]
+        })
+        .collect();
+    let (tp, tt) = capsule(0.5, &profile(0.0, length, 0.025), 64, |x| {
+        lengthen(x, length)
+    });
+    let unmoved = tt
+        .iter()
+        .enumerate()
+        .filter(|(_, t)| t.iter().all(|&v| tp[v as usize][0] < 0.5 * length))
+        .map(|(i, _)| i)
+        .collect();
+    UpdatePair {
+        source: glb_of(&sp, &st, Some(&colors)),
+        target: glb_of(&tp, &tt, None),
+        unmoved,
+    }
+}
+
+/// Largest |output − source| grey on the cylinder's top half over x ∈ [a, b].
+pub fn update_copy_error(points: &[([f32; 3], [f32; 3])], a: f32, b: f32) -> (f32, usize) {
+    let mut worst = 0.0f32;
+    let mut n = 0;
+    for (p, c) in points {
+        if p[0] >= a && p[0] <= b && p[1] > 0.0 {
+            let g = (c[0] + c[1] + c[2]) / 3.0;
+            worst = worst.max((g - update_source_grey(p[0])).abs());
+            n += 1;
+        }
+    }
+    (worst, n)
+}
+
+/// Stripe period along the top line (y > 0.45, |z| < 0.12) over x ∈ [a, b] from the spectrum:
+/// the grey level is averaged in 0.04-wide bins, Hann-windowed, and the period between 0.2 and
+/// 2 (steps of 0.002) with the largest Fourier power is returned. Finer than counting crossings
+/// ([`measured_period`]) on short ranges, where one crossing more or less moves that count's
+/// period by 15-25%.
+pub fn spectral_period(points: &[([f32; 3], [f32; 3])], a: f32, b: f32) -> f32 {
+    let bins = ((b - a) / 0.04).round() as usize;
+    let mut sum = vec![0.0f64; bins];
+    let mut count = vec![0u32; bins];
+    for (p, c) in points {
+        if p[1] > 0.45 && p[2].abs() < 0.12 && p[0] >= a && p[0] < b {
+            let i = ((((p[0] - a) / (b - a)) * bins as f32) as usize).min(bins - 1);
+            sum[i] += ((c[0] + c[1] + c[2]) / 3.0) as f64;
+            count[i] += 1;
+        }
+    }
+    let samples: Vec<(f64, f64)> = (0..bins)
+        .filter(|&i| count[i] > 0)
+        .map(|i| {
+            let x = a as f64 + (b - a) as f64 * (i as f64 + 0.5) / bins as f64;
+            (x, sum[i] / count[i] as f64)
+        })
+        .collect();
+    assert!(
+        samples.len() > bins / 2,
+        "only {} of {bins} bins sampled",
+        samples.len()
+    );
+    let mean = samples.iter().map(|s| s.1).sum::<f64>() / samples.len() as f64;
+    let span = (b - a) as f64;
+    let windowed: Vec<(f64, f64)> = samples
+        .iter()
+        .map(|&(x, v)| {
+            let w = 0.5 - 0.5 * (std::f64::consts::TAU * (x - a as f64) / span).cos();
+            (x, (v - mean) * w)
+        })
+        .collect();
+    let mut best = (0.0f64, 0.0f64);
+    let mut period = 0.2f64;
+    while period <= 2.0 {
+        let f = std::f64::consts::TAU / period;
+        let (re, im) = windowed.iter().fold((0.0, 0.0), |(re, im), &(x, v)| {
+            (re + v * (f * x).cos(), im + v * (f * x).sin())
+        });
+        let power = re * re + im * im;
+        if power > best.1 {
+            best = (period, power);
+        }
+        period += 0.002;
+    }
+    best.0 as f32
+}

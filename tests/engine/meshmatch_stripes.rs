@@ -10,7 +10,9 @@
 
 use crate::common;
 
-use crate::meshmatch_common::{capsule, colored_points, glb_of, run_bytes};
+use crate::meshmatch_common::{
+    capsule, colored_points, glb_of, measured_period, profile, run_bytes,
+};
 
 const W0: f32 = 0.8;
 const K: f32 = 0.125;
@@ -25,54 +27,6 @@ fn phase(x: f32) -> f32 {
 fn stripe(x: f32) -> f32 {
     let s = (std::f32::consts::TAU * phase(x)).sin();
     0.05 + 0.85 * (0.5 + 0.5 * (4.0 * s).tanh())
-}
-
-fn profile(from: f32, to: f32, step: f32) -> Vec<f32> {
-    let n = ((to - from) / step).round() as usize;
-    (0..=n)
-        .map(|i| from + (to - from) * i as f32 / n as f32)
-        .collect()
-}
-
-/// Mean stripe period along the top line (y > 0.45, |z| < 0.12) of the x range [a, b], from the
-/// number of crossings of the mean grey level in 0.06-wide bins (the target has rings every 0.05).
-fn measured_period(points: &[([f32; 3], [f32; 3])], a: f32, b: f32) -> f32 {
-    let bins = ((b - a) / 0.06).round() as usize;
-    let mut sum = vec![0.0f32; bins];
-    let mut count = vec![0u32; bins];
-    for (p, c) in points {
-        if p[1] > 0.45 && p[2].abs() < 0.12 && p[0] >= a && p[0] < b {
-            let i = (((p[0] - a) / (b - a)) * bins as f32) as usize;
-            sum[i.min(bins - 1)] += (c[0] + c[1] + c[2]) / 3.0;
-            count[i.min(bins - 1)] += 1;
-        }
-    }
-    let signal: Vec<f32> = sum
-        .iter()
-        .zip(&count)
-        .filter(|(_, n)| **n > 0)
-        .map(|(s, n)| s / *n as f32)
-        .collect();
-    assert!(
-        signal.len() > bins / 2,
-        "only {} of {bins} bins sampled",
-        signal.len()
-    );
-    let mean = signal.iter().sum::<f32>() / signal.len() as f32;
-    // Crossings with a little hysteresis.
-    let mut crossings = 0;
-    let mut above = signal[0] > mean;
-    for &v in &signal {
-        if above && v < mean - 0.05 {
-            above = false;
-            crossings += 1;
-        } else if !above && v > mean + 0.05 {
-            above = true;
-            crossings += 1;
-        }
-    }
-    assert!(crossings >= 2, "no stripes in [{a}, {b}]: {signal:?}");
-    2.0 * (b - a) / crossings as f32
 }
 
 fn warp(x: f32) -> f32 {

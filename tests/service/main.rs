@@ -22,6 +22,7 @@ mod http;
 mod http_errors;
 mod job_stream;
 mod memory_budget;
+mod meshmatch_update;
 mod method_seam;
 mod openapi;
 mod pg_bench;

@@ -44,6 +44,12 @@
 //! level; an empty result there is an error (the painted region is narrower than one fan). Coarser
 //! levels, which only seed the finer ones, use the painted vertices unshrunk: restricting them too
 //! collapsed the synthesized region onto one colour.
+//!
+//! Texture update (§5.3, Figure 10; [`super::update`]): source and target are different meshes;
+//! the copied target vertices keep their copied colour in every vote (restricted to coarser levels
+//! by averaging over each coarse vertex's children, all copied), but, unlike painted vertices,
+//! they are matched like every other vertex, so their matches (the source patches they were
+//! copied from) propagate into the synthesized region and it continues the copied texture.
 
 use serde::Serialize;
 
@@ -89,6 +95,18 @@ pub struct MatchInput<'a> {
     pub correspondences: &'a [PointPair],
     /// By-example mode: the painted vertices of the (shared) mesh.
     pub painted: Option<&'a [bool]>,
+    /// Texture-update mode: the target vertices copied from the source, and their colours.
+    pub copied: Option<Copied<'a>>,
+}
+
+/// Texture-update mode (§5.3, Figure 10): target vertices whose colour was copied from the source
+/// (by projection); they keep it, and the synthesis of the rest is constrained by them.
+#[derive(Clone, Copy)]
+pub struct Copied<'a> {
+    /// Copied target vertices.
+    pub mask: &'a [bool],
+    /// Linear RGB per target vertex (read where `mask` is set).
+    pub colors: &'a [[f32; 3]],
 }
 
 /// One EM iteration.
@@ -309,7 +327,7 @@ pub fn synthesize(
     drop(span);
 
     let normalization = Normalization::new(input, &src_levels, &shapes);
-    let masks = ExampleMasks::new(input, tgt_levels)?;
+    let masks = ExampleMasks::new(input, tgt_levels, normalization.color_std)?;
     let run = CoarseToFine {
         params,
         seed,
@@ -406,24 +424,53 @@ impl Normalization {
     }
 }
 
-/// By-example mode (§5.3): the painted target vertices of every level (kept as they are). The
-/// source vertices matches may use are found per level from the fan charts ([`fan_inside`]).
+/// The target vertices of every level that keep their colour: painted ones in by-example mode
+/// (§5.3; the source vertices matches may use are found per level from the fan charts,
+/// [`fan_inside`]), copied ones in texture-update mode (with their normalized colours, averaged
+/// over each coarse vertex's children, all of which are copied).
 struct ExampleMasks {
     painted: Option<Vec<Vec<bool>>>,
+    /// Texture update: the copied colours per level, normalized like the source's.
+    copied_colors: Option<Vec<Vec<[f32; 3]>>>,
 }
 
 impl ExampleMasks {
-    fn new(input: &MatchInput<'_>, tgt_levels: &MeshLevels) -> Result<Self, MeshMatchError> {
-        let painted = input.painted.map(|p| tgt_levels.restrict_mask_all(p));
+    fn new(
+        input: &MatchInput<'_>,
+        tgt_levels: &MeshLevels,
+        color_std: f32,
+    ) -> Result<Self, MeshMatchError> {
+        let (mask, name) = match (input.painted, input.copied) {
+            (Some(p), _) => (Some(p), "example"),
+            (None, Some(c)) => (Some(c.mask), "update"),
+            (None, None) => (None, "example"),
+        };
+        let painted = mask.map(|p| tgt_levels.restrict_mask_all(p));
         if let Some(p) = &painted {
             if !p[0].iter().any(|&x| x) {
                 return Err(MeshMatchError::Param {
-                    name: "example",
-                    message: "the example mask selects no vertex".into(),
+                    name,
+                    message: format!("the {name} mask selects no vertex"),
                 });
             }
         }
-        Ok(ExampleMasks { painted })
+        let copied_colors = input.copied.filter(|_| input.painted.is_none()).map(|c| {
+            let flat: Vec<f32> = c.colors.iter().flatten().map(|x| x / color_std).collect();
+            tgt_levels
+                .spread(0, 3, flat)
+                .into_iter()
+                .map(|l| l.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+                .collect()
+        });
+        Ok(ExampleMasks {
+            painted,
+            copied_colors,
+        })
+    }
+
+    /// By-example mode (source and target are one mesh), as opposed to texture update.
+    fn by_example(&self) -> bool {
+        self.painted.is_some() && self.copied_colors.is_none()
     }
 }
 
@@ -471,6 +518,13 @@ struct Level<'a> {
     /// By-example masks of this level: source vertices matches may use, painted targets.
     allowed: Option<Vec<bool>>,
     fixed: Option<&'a [bool]>,
+    /// Texture update: the copied colours of this level (normalized), else the fixed vertices
+    /// keep their source colour (`centers`, by-example mode: the same mesh).
+    fixed_colors: Option<&'a [[f32; 3]]>,
+    /// Whether the E-step leaves the fixed vertices' matches alone (by-example mode, where a
+    /// painted vertex matches itself). In texture-update mode copied vertices are matched like
+    /// the others, so their matches propagate into the synthesized region.
+    fixed_matches: bool,
     /// Why `allowed` is the unshrunk painted mask on this level, if it is.
     warning: Option<String>,
 }
@@ -496,6 +550,14 @@ struct LevelOutput {
     fidelity: Option<Fidelity>,
     report: LevelReport,
     warning: Option<String>,
+}
+
+impl Level<'_> {
+    /// The vertices the vote leaves alone, and the colours they keep.
+    fn keep(&self) -> Option<(&[bool], &[[f32; 3]])> {
+        self.fixed
+            .map(|f| (f, self.fixed_colors.unwrap_or(self.centers.as_slice())))
+    }
 }
 
 impl<'a> CoarseToFine<'a> {
@@ -549,7 +611,7 @@ impl<'a> CoarseToFine<'a> {
         let lv = self.prepare(level)?;
         self.control.stage("initial field and vote", 0)?;
         let mut nnf = self.initial_field(&lv, &coarser)?;
-        if let Some(f) = lv.fixed {
+        if let Some(f) = lv.fixed.filter(|_| lv.fixed_matches) {
             for (t, &is_fixed) in f.iter().enumerate() {
                 if is_fixed {
                     nnf.source[t] = t as u32;
@@ -564,7 +626,7 @@ impl<'a> CoarseToFine<'a> {
             fans: &lv.src_fans.data,
             centers: &lv.centers,
         };
-        let keep = lv.fixed.map(|f| (f, lv.centers.as_slice()));
+        let keep = lv.keep();
         let sigma = vote_sigma_at(params, level, self.levels - 1) * lv.radius;
         let mut colors = vote(&lv.stencil, &nnf, &patches, sigma, keep);
         let (iterations, converged) = self.iterate(&lv, &patches, sigma, &mut nnf, &mut colors)?;
@@ -683,6 +745,12 @@ impl<'a> CoarseToFine<'a> {
             tgt_shape,
             allowed,
             fixed: self.masks.painted.as_ref().map(|p| p[level].as_slice()),
+            fixed_colors: self
+                .masks
+                .copied_colors
+                .as_ref()
+                .map(|c| c[level].as_slice()),
+            fixed_matches: self.masks.by_example(),
             warning,
         })
     }
@@ -696,7 +764,13 @@ impl<'a> CoarseToFine<'a> {
         level: usize,
         charts: &ExpMap,
     ) -> Result<(Option<Vec<bool>>, Option<String>), MeshMatchError> {
-        let Some(painted) = self.masks.painted.as_ref().map(|p| &p[level]) else {
+        let Some(painted) = self
+            .masks
+            .painted
+            .as_ref()
+            .filter(|_| self.masks.by_example())
+            .map(|p| &p[level])
+        else {
             return Ok((None, None));
         };
         if level > 0 {
@@ -787,7 +861,7 @@ impl<'a> CoarseToFine<'a> {
         let (params, control, seed) = (self.params, self.control, self.seed);
         let (level, nt, levels) = (lv.index, lv.nt, self.levels);
         let (src_levels, tgt_levels) = (self.src, self.tgt);
-        let keep = lv.fixed.map(|f| (f, lv.centers.as_slice()));
+        let keep = lv.keep();
         let (labels, firsts) = components(tgt_levels.rings(level), nt);
         let mut rng = SplitMix64::new(mix(seed, 0x0bf5, level as u64));
         // A random start inside each component.
@@ -843,7 +917,7 @@ impl<'a> CoarseToFine<'a> {
                 level,
                 whole_source_draws: level + 1 == levels,
                 randomized_rotations: params.randomized_rotations,
-                fixed: lv.fixed,
+                fixed: lv.fixed.filter(|_| lv.fixed_matches),
                 seed: mix(seed, level as u64, it as u64),
             };
             step.refresh(nnf);

@@ -15,6 +15,7 @@
 //! - [`upsample`]: the field carried to the finer level (§4.2, Figure 6).
 //! - [`em`]: [`em::synthesize`], the coarse-to-fine EM on two synthesis meshes.
 //! - [`example`]: the by-example mask (§5.3).
+//! - [`update`]: texture update (§5.3, Figure 10): the copied region of an edited target.
 //! - [`run`]: glTF in, glTF out (bake through [`super::color_output`]), the NNF artifact.
 
 pub mod em;
@@ -26,6 +27,7 @@ pub mod matcher;
 pub mod nnf_file;
 pub mod run;
 pub mod sampling;
+pub mod update;
 pub mod upsample;
 pub mod vote;
 
@@ -39,6 +41,7 @@ use features::{AffinityParams, AutomaticFeatureParams};
 
 pub use example::ExampleMask;
 pub use run::run;
+pub use update::UpdateParams;
 
 use super::shared_params::SharedParams;
 use super::{InputSpec, Method, MethodError, MethodInput, MethodOutput, ResultFile, WorkingSet};
@@ -66,8 +69,12 @@ impl Method for MeshMatch {
     }
 
     fn extra_images(&self, constraints: &Constraints) -> Vec<(&'static str, usize)> {
-        match MeshMatchParams::from_constraints(constraints).map(|p| p.example) {
-            Ok(Some(ExampleMask::Image { index, .. })) => vec![("target", index)],
+        let Ok(p) = MeshMatchParams::from_constraints(constraints) else {
+            return Vec::new();
+        };
+        let copy = p.update.and_then(|u| u.copy);
+        match p.example.or(copy) {
+            Some(ExampleMask::Image { index, .. }) => vec![("target", index)],
             _ => Vec::new(),
         }
     }
@@ -268,6 +275,10 @@ pub struct MeshMatchParams {
     pub randomized_rotations: bool,
     /// By-example mode (§5.3): which part of the target is painted. Default none.
     pub example: Option<ExampleMask>,
+    /// Texture-update mode (§5.3, Figure 10): the target is an edited copy of the source; its
+    /// unedited part keeps the source's texture (copied by projection) and the rest is
+    /// synthesized. Default none.
+    pub update: Option<UpdateParams>,
     /// Shared: [`SharedParams::vertex_color_samples`].
     pub vertex_color_samples: usize,
     /// Shared: [`SharedParams::snap_tolerance`].
@@ -306,6 +317,7 @@ impl Default for MeshMatchParams {
             nearest_neighbor_final: true,
             randomized_rotations: false,
             example: None,
+            update: None,
             vertex_color_samples: shared.vertex_color_samples,
             snap_tolerance: shared.snap_tolerance,
             weld_tolerance: shared.weld_tolerance,
@@ -354,6 +366,12 @@ impl MeshMatchParams {
     /// [`MeshMatchError::Param`] for `hks.up`.
     pub fn validate(&self) -> Result<(), MeshMatchError> {
         super::params::check_ranges(self).map_err(|e| MeshMatchError::Constraints(e.into()))?;
+        if self.example.is_some() && self.update.is_some() {
+            return Err(MeshMatchError::Param {
+                name: "update",
+                message: "texture update and by-example mode exclude each other: give one of `example` and `update`".into(),
+            });
+        }
         if let Some(up) = self.hks.up {
             if !(up.iter().all(|x| x.is_finite()) && up.iter().any(|x| *x != 0.0)) {
                 return Err(MeshMatchError::Param {

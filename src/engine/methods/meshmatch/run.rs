@@ -7,6 +7,11 @@
 //!
 //! By-example mode (§5.3, `params.example`): the *target* asset is both the example and the
 //! canvas; the source upload is not read (send the same file twice).
+//!
+//! Texture-update mode (§5.3, Figure 10, `params.update`): the target is an edited copy of the
+//! source, in the same units (no area scaling); its copied region ([`copied_region`]) keeps the
+//! source's colour, read at full resolution at the closest source point, and the rest is
+//! synthesized around it.
 
 use serde::Serialize;
 
@@ -19,10 +24,11 @@ use crate::engine::methods::color_output::{write_color_field, ColorField, ColorO
 use crate::engine::methods::correspondence::resolve_on_surfaces;
 use crate::engine::spatial::Bvh;
 
-use super::em::{synthesize, MatchInput, MatchReport, PointPair};
+use super::em::{synthesize, Copied, MatchInput, MatchReport, PointPair};
 use super::example::painted_vertices;
 use super::nnf_file::NnfFile;
 use super::sampling::{input_color, synthesis_colors, synthesis_mesh};
+use super::update::{copied_region, CopySource};
 use super::{MeshMatchError, MeshMatchParams, ScaleMode};
 use crate::engine::texture::sample::MaterialSampler;
 
@@ -39,6 +45,8 @@ pub struct MeshMatchReport {
     pub correspondences: usize,
     /// Painted synthesis vertices (by-example mode).
     pub painted_samples: Option<usize>,
+    /// Target synthesis vertices copied from the source (texture-update mode).
+    pub copied_samples: Option<usize>,
     /// The optimization.
     pub synthesis: MatchReport,
     /// What was written into the target.
@@ -49,7 +57,8 @@ pub struct MeshMatchReport {
 
 /// The synthesized colours on the target synthesis mesh, as a field over the target surface.
 /// In by-example mode, points inside the painted region read the original base colour instead
-/// (the painted texture is kept at full resolution, not re-baked from the samples).
+/// (the painted texture is kept at full resolution, not re-baked from the samples); in
+/// texture-update mode, points inside the copied region read the source's.
 struct SynthesizedField<'a> {
     surface: Surface,
     bvh: Bvh,
@@ -57,13 +66,14 @@ struct SynthesizedField<'a> {
     original: Option<Original<'a>>,
 }
 
-/// The painted original of by-example mode.
+/// The painted original of by-example mode (the target), or the source of texture-update mode.
 struct Original<'a> {
     asset: &'a Asset,
     input: &'a Surface,
     /// The input surface's BVH (the original colour is read at the closest input point: the
     /// synthesis mesh may be a decimation of the input).
-    input_bvh: Bvh,
+    input_bvh: &'a Bvh,
+    /// Painted (copied) synthesis vertices: a triangle whose corners all are reads the original.
     painted: Vec<bool>,
     sampler: MaterialSampler<'a>,
 }
@@ -142,7 +152,9 @@ pub fn run(
             message: "a surface has zero area".into(),
         });
     }
-    let scale = match (params.scale, by_example) {
+    // By-example and texture update work in one model's units: no scaling.
+    let same_units = by_example || params.update.is_some();
+    let scale = match (params.scale, same_units) {
         (_, true) | (ScaleMode::World, _) => 1.0f32,
         (ScaleMode::MatchArea, false) => (area_t / area_s).sqrt() as f32,
     };
@@ -190,6 +202,30 @@ pub fn run(
         Some(mask) => Some(painted_vertices(mask, target, &tgt_surface, &tgt_mesh)?),
         None => None,
     };
+    // The full-resolution original read inside the painted (copied) region: the target's
+    // surface in by-example mode, the source's in texture-update mode.
+    let original_bvh = match (&painted, &params.update) {
+        (Some(_), _) => Some(Bvh::build(&tgt_surface.positions, &tgt_surface.faces)),
+        (None, Some(_)) => Some(Bvh::build(&src_surface.positions, &src_surface.faces)),
+        (None, None) => None,
+    };
+    let copied = match (&params.update, &original_bvh) {
+        (Some(update), Some(bvh)) => {
+            let region = copied_region(
+                update,
+                &CopySource {
+                    asset: src_asset,
+                    surface: &src_surface,
+                    bvh,
+                },
+                (target, &tgt_surface),
+                &tgt_mesh,
+            )?;
+            warnings.extend(region.warnings.iter().cloned());
+            Some(region)
+        }
+        _ => None,
+    };
     let mut scaled_source = src_mesh.surface.clone();
     for p in scaled_source.positions.iter_mut() {
         *p = p.map(|x| x * scale);
@@ -204,6 +240,10 @@ pub fn run(
             target: &tgt_mesh.surface,
             correspondences: &pairs,
             painted: painted.as_deref(),
+            copied: copied.as_ref().map(|c| Copied {
+                mask: &c.mask,
+                colors: &c.colors,
+            }),
         },
         params,
         constraints.seed,
@@ -223,17 +263,31 @@ pub fn run(
         .encode()
     });
     let painted_count = painted.as_ref().map(|p| p.iter().filter(|x| **x).count());
+    let copied_count = copied
+        .as_ref()
+        .map(|c| c.mask.iter().filter(|x| **x).count());
+    let original = match (painted, copied, &original_bvh) {
+        (Some(painted), _, Some(bvh)) => Some(Original {
+            asset: target,
+            input: &tgt_surface,
+            input_bvh: bvh,
+            painted,
+            sampler: MaterialSampler::new(target),
+        }),
+        (None, Some(c), Some(bvh)) => Some(Original {
+            asset: src_asset,
+            input: &src_surface,
+            input_bvh: bvh,
+            painted: c.mask,
+            sampler: MaterialSampler::new(src_asset),
+        }),
+        _ => None,
+    };
     let field = SynthesizedField {
         bvh: Bvh::build(&tgt_mesh.surface.positions, &tgt_mesh.surface.faces),
         surface: tgt_mesh.surface,
         colors: out.colors,
-        original: painted.map(|painted| Original {
-            asset: target,
-            input: &tgt_surface,
-            input_bvh: Bvh::build(&tgt_surface.positions, &tgt_surface.faces),
-            painted,
-            sampler: MaterialSampler::new(target),
-        }),
+        original,
     };
     let _span = control.span(0.9, 1.0);
     let (edits, output) = write_color_field(
@@ -249,6 +303,7 @@ pub fn run(
         source_scale: scale,
         correspondences: pairs.len(),
         painted_samples: painted_count,
+        copied_samples: copied_count,
         synthesis: out.report,
         output,
         warnings,
