@@ -38,6 +38,8 @@ pub use schema::{constraints_schema, constraints_schema_for, constraints_schema_
 pub use shared_params::SharedParams;
 
 use crate::engine::asset::constraints::MethodId;
+use crate::engine::asset::Asset;
+use crate::engine::mesh::{build_surface, Surface, WeldParams};
 
 /// The methods a pipeline can run. [`Registry::builtin`] is the list retex ships; tests may build
 /// a registry with more (e.g. a method for an id that is not implemented yet).
@@ -99,4 +101,15 @@ impl Default for Registry {
     fn default() -> Self {
         Self::builtin()
     }
+}
+
+/// The welded surface of an input `asset` (`side`: `"source"` or `"target"`); a mesh that
+/// cannot be built is a [`MethodError::Mesh`] naming the side. Shared by the methods under
+/// `methods/` that weld their inputs the same way (`correlation`, `elastiface`).
+fn surface_of(
+    asset: &Asset,
+    weld: &WeldParams,
+    side: &'static str,
+) -> Result<Surface, MethodError> {
+    build_surface(asset, weld).map_err(|source| MethodError::Mesh { side, source })
 }

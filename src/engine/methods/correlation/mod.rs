@@ -43,10 +43,12 @@ use crate::engine::asset::constraints::{Constraints, ConstraintsError, MethodId}
 use crate::engine::asset::edits::Edit;
 use crate::engine::asset::Asset;
 use crate::engine::control::Control;
-use crate::engine::mesh::{build_surface, Surface, WeldParams};
+use crate::engine::mesh::{Surface, WeldParams};
 use crate::engine::methods::color_output::{write_color_field, ColorField};
 use crate::engine::methods::meshmatch::sampling::{synthesis_colors, SynthesisMesh};
-use crate::engine::methods::{InputSpec, Method, MethodError, MethodInput, MethodOutput};
+use crate::engine::methods::{
+    surface_of, InputSpec, Method, MethodError, MethodInput, MethodOutput,
+};
 use crate::engine::spatial::Bvh;
 
 use debug::{debug_files, guidance_range, DebugFields};
@@ -235,14 +237,6 @@ fn fill_masked(mut colors: Vec<[f32; 3]>, weights: &[f32], area: &[f32]) -> Vec<
         }
     }
     colors
-}
-
-fn surface_of(
-    asset: &Asset,
-    weld: &WeldParams,
-    side: &'static str,
-) -> Result<Surface, MethodError> {
-    build_surface(asset, weld).map_err(|source| MethodError::Mesh { side, source })
 }
 
 fn side_report(surface: &Surface, p: &SurfacePyramid) -> SideReport {

@@ -31,6 +31,7 @@
 use rayon::prelude::*;
 
 use super::blend::{location_weight, Blend};
+use super::patches::rasterise_triangle;
 use super::sweep::feature_dist2;
 use crate::engine::control::{Cancelled, StageProgress};
 use crate::engine::geometry::expmap::{
@@ -114,7 +115,13 @@ impl<'a> Charts<'a> {
                     continue;
                 }
                 let pts = slots.map(|k| to_grid(s.coords[k as usize]));
-                rasterise(pts, f, side, &mut s.face, &mut s.bary);
+                // The first face to reach a cell keeps it.
+                rasterise_triangle(pts, side, |k, [wa, wb, wc]| {
+                    if s.face[k] == NONE {
+                        s.face[k] = f;
+                        s.bary[k] = [wa as f32, wb as f32, wc as f32];
+                    }
+                });
             }
         }
         for &v in &s.vertex {
@@ -131,39 +138,6 @@ pub(super) struct Scratch {
     coords: Vec<[f32; 2]>,
     face: Vec<u32>,
     bary: Vec<[f32; 3]>,
-}
-
-/// Records `face` and the barycentric weights at every free grid point inside `pts`.
-fn rasterise(pts: [[f64; 2]; 3], face: u32, n: usize, faces: &mut [u32], bary: &mut [[f32; 3]]) {
-    let [a, b, c] = pts;
-    let area = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
-    if area.abs() < 1e-12 || !area.is_finite() {
-        return;
-    }
-    let lo = |k: usize| pts.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
-    let hi = |k: usize| pts.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max);
-    let top = n as f64 - 1.0;
-    if hi(0) < 0.0 || hi(1) < 0.0 || lo(0) > top || lo(1) > top {
-        return;
-    }
-    let clamp = |x: f64| x.clamp(0.0, top) as usize;
-    let eps = 1e-9;
-    for iy in clamp(lo(1).ceil())..=clamp(hi(1).floor()) {
-        for ix in clamp(lo(0).ceil())..=clamp(hi(0).floor()) {
-            let k = iy * n + ix;
-            if faces[k] != NONE {
-                continue;
-            }
-            let (x, y) = (ix as f64, iy as f64);
-            let wa = ((b[0] - x) * (c[1] - y) - (c[0] - x) * (b[1] - y)) / area;
-            let wb = ((c[0] - x) * (a[1] - y) - (a[0] - x) * (c[1] - y)) / area;
-            let wc = 1.0 - wa - wb;
-            if wa >= -eps && wb >= -eps && wc >= -eps {
-                faces[k] = face;
-                bary[k] = [wa as f32, wb as f32, wc as f32];
-            }
-        }
-    }
 }
 
 /// The corner with the largest weight of each cell (`NONE` where uncovered).

@@ -234,7 +234,13 @@ impl<'a> Sampler<'a> {
                 }
                 let pts = slots.map(|s| to_grid(chart.coords[s as usize]));
                 let vals = corners.map(|c| self.values[c as usize]);
-                rasterise(pts, vals, n, grid, covered);
+                // The first face to reach a grid point keeps it.
+                rasterise_triangle(pts, n, |k, [wa, wb, wc]| {
+                    if !covered[k] {
+                        grid[k] = wa * vals[0] + wb * vals[1] + wc * vals[2];
+                        covered[k] = true;
+                    }
+                });
             }
         }
         if covered.iter().any(|c| !c) {
@@ -263,34 +269,38 @@ impl<'a> Sampler<'a> {
     }
 }
 
-/// Writes the barycentric interpolation of `vals` at every uncovered grid point inside the
-/// triangle `pts` (grid index coordinates).
-fn rasterise(pts: [[f64; 2]; 3], vals: [f64; 3], n: usize, grid: &mut [f64], covered: &mut [bool]) {
+/// Calls `visit(k, [wa, wb, wc])` for every point `(ix, iy)` of an `n × n` grid (`k = iy · n +
+/// ix`; the point sits at `(ix, iy)` in grid index coordinates) inside the triangle `pts` (same
+/// coordinates), with its barycentric weights of the three corners; points on an edge count
+/// (tolerance 1e-9). Rows in increasing `iy`, each in increasing `ix`. Nothing for a degenerate
+/// triangle (`|2 · area| < 1e-12`) or a non-finite area. Used by [`Sampler::sample`] here and by
+/// [`super::patch_match`]'s rasterised charts; the caller decides what a covered point keeps.
+pub(super) fn rasterise_triangle(
+    pts: [[f64; 2]; 3],
+    n: usize,
+    mut visit: impl FnMut(usize, [f64; 3]),
+) {
     let [a, b, c] = pts;
     let area = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1]);
-    if area.abs() < 1e-12 {
+    if area.abs() < 1e-12 || !area.is_finite() {
         return;
     }
     let lo = |k: usize| pts.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min);
     let hi = |k: usize| pts.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max);
-    let clamp = |x: f64| x.clamp(0.0, n as f64 - 1.0) as usize;
-    if hi(0) < 0.0 || hi(1) < 0.0 || lo(0) > n as f64 - 1.0 || lo(1) > n as f64 - 1.0 {
+    let top = n as f64 - 1.0;
+    if hi(0) < 0.0 || hi(1) < 0.0 || lo(0) > top || lo(1) > top {
         return;
     }
+    let clamp = |x: f64| x.clamp(0.0, top) as usize;
     let eps = 1e-9;
     for iy in clamp(lo(1).ceil())..=clamp(hi(1).floor()) {
         for ix in clamp(lo(0).ceil())..=clamp(hi(0).floor()) {
-            let k = iy * n + ix;
-            if covered[k] {
-                continue;
-            }
             let (x, y) = (ix as f64, iy as f64);
             let wa = ((b[0] - x) * (c[1] - y) - (c[0] - x) * (b[1] - y)) / area;
             let wb = ((c[0] - x) * (a[1] - y) - (a[0] - x) * (c[1] - y)) / area;
             let wc = 1.0 - wa - wb;
             if wa >= -eps && wb >= -eps && wc >= -eps {
-                grid[k] = wa * vals[0] + wb * vals[1] + wc * vals[2];
-                covered[k] = true;
+                visit(iy * n + ix, [wa, wb, wc]);
             }
         }
     }

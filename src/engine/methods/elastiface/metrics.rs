@@ -51,13 +51,27 @@ pub struct Hausdorff {
     pub max: f64,
 }
 
-/// Flipped triangles of the fitted source.
+/// Flipped (or turned-over) triangles of the fitted source.
 #[derive(Clone, Copy, Debug, Default, serde::Serialize)]
 pub struct Flipped {
     /// Triangles.
     pub count: usize,
     /// Their area over the fitted source's area.
     pub area_fraction: f64,
+}
+
+impl Flipped {
+    /// The figures of per-face `(counted, area)` pairs of the fitted source: how many faces are
+    /// counted, and their area over the total (0 when the total is not positive).
+    fn from_faces(faces: &[(bool, f64)]) -> Self {
+        let total: f64 = faces.iter().map(|x| x.1).sum();
+        // A fold from +0 (an empty `sum` of floats is −0, which the report would print).
+        let bad = faces.iter().filter(|x| x.0).fold(0.0, |s, x| s + x.1);
+        Flipped {
+            count: faces.iter().filter(|x| x.0).count(),
+            area_fraction: if total > 0.0 { bad / total } else { 0.0 },
+        }
+    }
 }
 
 /// Correspondence residuals of the hand-placed pairs.
@@ -177,13 +191,7 @@ pub fn flipped(fitted: &MeshRef<'_>, target: &MeshRef<'_>) -> Flipped {
             })
         })
         .collect();
-    let total: f64 = per_face.iter().map(|x| x.1).sum();
-    // A fold from +0 (an empty `sum` of floats is −0, which the report would print).
-    let bad = per_face.iter().filter(|x| x.0).fold(0.0, |s, x| s + x.1);
-    Flipped {
-        count: per_face.iter().filter(|x| x.0).count(),
-        area_fraction: if total > 0.0 { bad / total } else { 0.0 },
-    }
+    Flipped::from_faces(&per_face)
 }
 
 /// Triangles of `fitted` turned over against the same triangles on `template` (same faces, the
@@ -198,13 +206,7 @@ pub fn turned_over(fitted: &MeshRef<'_>, template: &[[f64; 3]]) -> Flipped {
             (dot(n, before) < 0.0, 0.5 * length(n))
         })
         .collect();
-    let total: f64 = per_face.iter().map(|x| x.1).sum();
-    // A fold from +0 (an empty `sum` of floats is −0, which the report would print).
-    let bad = per_face.iter().filter(|x| x.0).fold(0.0, |s, x| s + x.1);
-    Flipped {
-        count: per_face.iter().filter(|x| x.0).count(),
-        area_fraction: if total > 0.0 { bad / total } else { 0.0 },
-    }
+    Flipped::from_faces(&per_face)
 }
 
 /// Residuals of the hand-placed pairs between the fitted source and the target.

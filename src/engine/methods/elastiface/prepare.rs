@@ -10,10 +10,10 @@ use super::frame::Frame;
 use super::metrics::{self, Residuals};
 use super::refs::{self, RefPair};
 use super::{region, writeback, Call, MethodError};
-use crate::engine::asset::Asset;
-use crate::engine::mesh::{build_surface, Surface, WeldParams};
+use crate::engine::mesh::{Surface, WeldParams};
 use crate::engine::methods::align::best_similarity;
 use crate::engine::methods::correspondence::resolve_on_surfaces;
+use crate::engine::methods::surface_of;
 use crate::engine::spatial::Bvh;
 
 /// The prepared inputs every later stage reads.
@@ -147,14 +147,6 @@ pub fn prepare(call: &Call<'_>) -> Result<Prepared, MethodError> {
         boundary,
         residuals_initial,
     })
-}
-
-fn surface_of(
-    asset: &Asset,
-    weld: &WeldParams,
-    side: &'static str,
-) -> Result<Surface, MethodError> {
-    build_surface(asset, weld).map_err(|source| MethodError::Mesh { side, source })
 }
 
 fn f64s(p: &[[f32; 3]]) -> Vec<[f64; 3]> {
