@@ -37,7 +37,8 @@ struct Phases {
     features: f64,
     /// Every `meshmatch level …` stage.
     levels: f64,
-    /// Stages of the finest level outside its iterations (source fans, charts, stencil, first vote).
+    /// Stages of the finest level outside its iterations (source fans, charts, target fan weights,
+    /// stencil, first vote).
     finest_setup: f64,
     /// Per finest-level iteration: target fans, E-step, vote.
     fans: Vec<f64>,
@@ -203,7 +204,7 @@ pub fn run(assets: &Path, runs: usize) -> Result<(), String> {
             "—",
         ),
         (
-            "finest level: charts + source fans",
+            "finest level: charts + source fans + target fan weights",
             median(exhaustive.level0_setup.clone()),
             "40 s fans",
         ),

@@ -594,8 +594,8 @@ fn bench_geodesic_fans_64k() {
     );
 }
 
-/// A prepared [`FanSampler`] gives exactly the fans of [`geodesic_fans`] for any field, and a
-/// chart cap bounds every chart.
+/// A prepared [`FanSampler`] gives exactly the fans of [`geodesic_fans`] for any field, with or
+/// without its filter weights kept, and a chart cap bounds every chart.
 #[test]
 fn fan_sampler_reuses_charts_and_matches_geodesic_fans() {
     use retex::engine::geometry::fans::FanSampler;
@@ -603,6 +603,15 @@ fn fan_sampler_reuses_charts_and_matches_geodesic_fans() {
     let frames = frames_of(&s);
     let params = FanParams::default();
     let sampler = FanSampler::new(&s, &frames, &params, &Control::new()).unwrap();
+    let mut cached = FanSampler::new(&s, &frames, &params, &Control::new()).unwrap();
+    assert_eq!(cached.cached_weights(), 0);
+    cached.cache_weights(&Control::new()).unwrap();
+    // About 8 weights per sample with the default filter (σ = half the ring spacing, 3σ reach).
+    let per_sample = cached.cached_weights() as f64 / (s.vertex_count() * 54) as f64;
+    assert!(
+        (4.0..16.0).contains(&per_sample),
+        "{per_sample} weights per sample"
+    );
     for phase in [0.0f32, 1.3] {
         let field: Vec<f32> = s
             .positions
@@ -616,6 +625,8 @@ fn fan_sampler_reuses_charts_and_matches_geodesic_fans() {
         let a = sampler.sample(f, &Control::new()).unwrap();
         let b = geodesic_fans(&s, &frames, f, &params, &Control::new()).unwrap();
         assert_eq!(a, b);
+        // The kept weights give the same fans, bit for bit, for any field.
+        assert_eq!(cached.sample(f, &Control::new()).unwrap(), b);
     }
     let capped = FanSampler::new(
         &s,

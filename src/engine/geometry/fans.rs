@@ -19,7 +19,9 @@
 //! one-sided support, and reproduces linear fields exactly. Its effective weights can be
 //! negative, so values may overshoot the neighbours' range slightly. When the fit is ill
 //! conditioned it falls back to the mean, and a sample with no neighbour in reach (past a mesh
-//! boundary) takes the value of the nearest chart vertex.
+//! boundary) takes the value of the nearest chart vertex. Both filters are linear in the field;
+//! [`super::fan_filter`] computes them as weights per neighbour, which [`FanSampler`] can keep
+//! ([`FanSampler::cache_weights`]) for surfaces sampled many times.
 //!
 //! **Layout.** `Fans::data` is row-major per vertex: `[vertex][ring][spoke][dim]`.
 //!
@@ -33,6 +35,7 @@ use super::super::mesh::surface::Surface;
 use super::expmap::{
     world_radius, ChartBuilder, Connection, ExpMapParams, LocalFrames, RadiusUnit, CHUNK,
 };
+use super::fan_filter::{FanWeights, Kernel, Layout, Scratch};
 use rayon::prelude::*;
 
 /// Errors of [`geodesic_fans`].
@@ -312,7 +315,7 @@ pub fn geodesic_fans(
     data.par_chunks_mut(CHUNK * shape.len().max(1))
         .enumerate()
         .try_for_each_init(
-            || (ChartBuilder::new(nv), Scratch::new(field.dim)),
+            || (ChartBuilder::new(nv), Scratch::new()),
             |(builder, scratch), (chunk, out)| {
                 for (i, fan) in out.chunks_exact_mut(shape.len()).enumerate() {
                     let s = chunk * CHUNK + i;
@@ -341,47 +344,6 @@ pub fn geodesic_fans(
     })
 }
 
-/// What every fan of one surface shares: layout, sample positions, vertex areas.
-struct Layout<'a> {
-    shape: FanShape,
-    radius: f32,
-    reach: f32,
-    samples: &'a [[f32; 2]],
-    area: &'a [f32],
-}
-
-impl Layout<'_> {
-    /// Fills one fan from the chart `(vertex, coords)` of its centre.
-    fn fill(
-        &self,
-        vertex: &[u32],
-        coords: &[[f32; 2]],
-        kernel: &Kernel,
-        field: FieldRef<'_>,
-        scratch: &mut Scratch,
-        fan: &mut [f32],
-    ) {
-        let shape = self.shape;
-        let ring_len = shape.spokes * shape.dim;
-        for (ring, ring_out) in fan.chunks_exact_mut(ring_len).enumerate() {
-            // Only chart vertices with | |U| − ρ | <= reach can be within reach of a sample on
-            // ring ρ.
-            let rho = (ring + 1) as f32 * self.radius / shape.rings as f32;
-            scratch.band(vertex, coords, self.area, rho, self.reach);
-            let ring_samples = &self.samples[ring * shape.spokes..(ring + 1) * shape.spokes];
-            for (sample, value) in ring_samples
-                .iter()
-                .zip(ring_out.chunks_exact_mut(field.dim))
-            {
-                kernel.estimate(*sample, scratch, field, value);
-                if scratch.fallback {
-                    nearest_value(*sample, vertex, coords, field, value);
-                }
-            }
-        }
-    }
-}
-
 /// Fans of one surface for many fields (MeshMatch samples the target's changing colours once per
 /// EM iteration): the exponential-map charts (radius + reach) are built once by [`FanSampler::new`]
 /// and reused by every [`FanSampler::sample`], which gives exactly what [`geodesic_fans`] gives.
@@ -393,6 +355,8 @@ pub struct FanSampler {
     samples: Vec<[f32; 2]>,
     area: Vec<f32>,
     charts: super::expmap::ExpMap,
+    /// The filter weights of every sample, once [`FanSampler::cache_weights`] ran.
+    weights: Option<FanWeights>,
 }
 
 impl FanSampler {
@@ -453,7 +417,53 @@ impl FanSampler {
             samples,
             area: lumped_areas(surface),
             charts,
+            weights: None,
         })
+    }
+
+    fn kernel(&self) -> Kernel {
+        Kernel {
+            inv_two_sigma2: 1.0 / (2.0 * self.sigma * self.sigma),
+            inv_sigma: 1.0 / self.sigma,
+            reach2: self.reach * self.reach,
+            filter: self.params.filter,
+        }
+    }
+
+    fn layout(&self) -> Layout<'_> {
+        Layout {
+            shape: FanShape {
+                rings: self.params.rings,
+                spokes: self.params.spokes,
+                dim: 1,
+            },
+            radius: self.radius,
+            reach: self.reach,
+            samples: &self.samples,
+            area: &self.area,
+        }
+    }
+
+    /// Computes and keeps the filter weights of every fan sample (one Control stage "fan
+    /// weights"), so every later [`FanSampler::sample`] is a gather: worth it when the same
+    /// charts sample several fields. Costs 8 bytes per weight ([`FanSampler::cached_weights`];
+    /// about 8 per sample with the default filter). The fans are the same, bit for bit.
+    ///
+    /// # Errors
+    /// [`FanError::Cancelled`].
+    pub fn cache_weights(&mut self, control: &Control) -> Result<(), FanError> {
+        let nv = self.area.len();
+        let stage = control.stage("fan weights", nv as u64)?;
+        let weights = FanWeights::build(&self.layout(), &self.kernel(), &self.charts, &|n| {
+            stage.tick(n)
+        })?;
+        self.weights = Some(weights);
+        Ok(())
+    }
+
+    /// Weights kept by [`FanSampler::cache_weights`] (0 before).
+    pub fn cached_weights(&self) -> usize {
+        self.weights.as_ref().map_or(0, FanWeights::len)
     }
 
     /// The charts (radius = fan radius + filter reach), world units.
@@ -491,33 +501,24 @@ impl FanSampler {
             spokes: self.params.spokes,
             dim: field.dim,
         };
-        let kernel = Kernel {
-            inv_two_sigma2: 1.0 / (2.0 * self.sigma * self.sigma),
-            inv_sigma: 1.0 / self.sigma,
-            reach2: self.reach * self.reach,
-            filter: self.params.filter,
-        };
-        let layout = Layout {
-            shape,
-            radius: self.radius,
-            reach: self.reach,
-            samples: &self.samples,
-            area: &self.area,
-        };
         let stage = control.stage("geodesic fans", nv as u64)?;
         let mut data = vec![0.0f32; nv * shape.len()];
-        data.par_chunks_mut(CHUNK * shape.len().max(1))
-            .enumerate()
-            .try_for_each_init(
-                || Scratch::new(field.dim),
-                |scratch, (chunk, out)| {
+        if let Some(weights) = &self.weights {
+            weights.sample(field, &mut data, control);
+            control.check()?;
+            stage.tick(nv as u64)?;
+        } else {
+            let (kernel, layout) = (self.kernel(), self.layout());
+            data.par_chunks_mut(CHUNK * shape.len().max(1))
+                .enumerate()
+                .try_for_each_init(Scratch::new, |scratch, (chunk, out)| {
                     for (i, fan) in out.chunks_exact_mut(shape.len()).enumerate() {
                         let (vertex, coords) = self.charts.chart(chunk * CHUNK + i);
                         layout.fill(vertex, coords, &kernel, field, scratch, fan);
                     }
                     stage.tick((out.len() / shape.len().max(1)) as u64)
-                },
-            )?;
+                })?;
+        }
         Ok(Fans {
             rings: shape.rings,
             spokes: shape.spokes,
@@ -616,149 +617,4 @@ fn lumped_areas(surface: &Surface) -> Vec<f32> {
         }
     }
     area
-}
-
-struct Kernel {
-    inv_two_sigma2: f32,
-    inv_sigma: f32,
-    reach2: f32,
-    filter: FanFilter,
-}
-
-/// Per-thread scratch: the chart vertices of one ring's band, structure-of-arrays.
-struct Scratch {
-    x: Vec<f32>,
-    y: Vec<f32>,
-    vertex: Vec<u32>,
-    area: Vec<f32>,
-    d2: Vec<f32>,
-    /// Indices (into the band) of the vertices within reach of the current sample.
-    near: Vec<u32>,
-    /// `3 * dim` accumulators.
-    acc: Vec<f64>,
-    /// Set by [`Kernel::estimate`] when no neighbour was in reach.
-    fallback: bool,
-}
-
-impl Scratch {
-    fn new(dim: usize) -> Self {
-        Scratch {
-            x: Vec::new(),
-            y: Vec::new(),
-            vertex: Vec::new(),
-            area: Vec::new(),
-            d2: Vec::new(),
-            near: Vec::new(),
-            acc: vec![0.0; 3 * dim],
-            fallback: false,
-        }
-    }
-
-    /// Keeps the chart vertices whose radius is within `reach` of `rho`.
-    fn band(&mut self, vertex: &[u32], coords: &[[f32; 2]], area: &[f32], rho: f32, reach: f32) {
-        self.x.clear();
-        self.y.clear();
-        self.vertex.clear();
-        self.area.clear();
-        let (lo, hi) = ((rho - reach).max(0.0), rho + reach);
-        let (lo2, hi2) = (lo * lo, hi * hi);
-        for (&v, u) in vertex.iter().zip(coords) {
-            let r2 = u[0] * u[0] + u[1] * u[1];
-            if r2 >= lo2 && r2 <= hi2 {
-                self.x.push(u[0]);
-                self.y.push(u[1]);
-                self.vertex.push(v);
-                self.area.push(area[v as usize]);
-            }
-        }
-        self.d2.resize(self.x.len(), 0.0);
-        self.near.resize(self.x.len() + 1, 0);
-    }
-}
-
-/// Writes the field value of the chart vertex nearest to `s` into `value`.
-fn nearest_value(
-    s: [f32; 2],
-    vertex: &[u32],
-    coords: &[[f32; 2]],
-    field: FieldRef<'_>,
-    value: &mut [f32],
-) {
-    let mut nearest = (f32::INFINITY, vertex[0] as usize);
-    for (&v, u) in vertex.iter().zip(coords) {
-        let d2 = (u[0] - s[0]).powi(2) + (u[1] - s[1]).powi(2);
-        if d2 < nearest.0 {
-            nearest = (d2, v as usize);
-        }
-    }
-    let dim = field.dim;
-    value.copy_from_slice(&field.values[nearest.1 * dim..(nearest.1 + 1) * dim]);
-}
-
-impl Kernel {
-    /// Writes the filtered field at chart position `s` over the band in `scratch` into `value`
-    /// (`dim` floats), or sets `scratch.fallback` when no band vertex is in reach.
-    fn estimate(&self, s: [f32; 2], scratch: &mut Scratch, field: FieldRef<'_>, value: &mut [f32]) {
-        let dim = field.dim;
-        // Pass 1 (vectorizes): squared chart distances to the sample.
-        for ((d2, x), y) in scratch.d2.iter_mut().zip(&scratch.x).zip(&scratch.y) {
-            let (dx, dy) = (x - s[0], y - s[1]);
-            *d2 = dx * dx + dy * dy;
-        }
-        // Branch-free compaction of the band vertices within reach.
-        let mut n = 0;
-        for (k, &d2) in scratch.d2.iter().enumerate() {
-            scratch.near[n] = k as u32;
-            n += (d2 <= self.reach2) as usize;
-        }
-        // Pass 2: weights and moments of the vertices in reach.
-        let acc = &mut scratch.acc;
-        acc.fill(0.0);
-        let (mut s0, mut sx, mut sy, mut sxx, mut sxy, mut syy) = (0.0f64, 0.0, 0.0, 0.0, 0.0, 0.0);
-        let mut gauss_sum = 0.0f32;
-        for &k in &scratch.near[..n] {
-            let k = k as usize;
-            let d2 = scratch.d2[k];
-            let g = (-d2 * self.inv_two_sigma2).exp();
-            gauss_sum += g;
-            let w = (g * scratch.area[k]) as f64;
-            let x = ((scratch.x[k] - s[0]) * self.inv_sigma) as f64;
-            let y = ((scratch.y[k] - s[1]) * self.inv_sigma) as f64;
-            s0 += w;
-            sx += w * x;
-            sy += w * y;
-            sxx += w * x * x;
-            sxy += w * x * y;
-            syy += w * y * y;
-            let v = scratch.vertex[k] as usize;
-            let f = &field.values[v * dim..(v + 1) * dim];
-            for c in 0..dim {
-                let wf = w * f[c] as f64;
-                acc[c] += wf;
-                acc[dim + c] += wf * x;
-                acc[2 * dim + c] += wf * y;
-            }
-        }
-        scratch.fallback = gauss_sum < 1e-4 || s0 <= 0.0;
-        if scratch.fallback {
-            return;
-        }
-        if self.filter == FanFilter::LocalLinear {
-            // First row of the inverse of the moment matrix [[s0 sx sy][sx sxx sxy][sy sxy syy]].
-            let c0 = sxx * syy - sxy * sxy;
-            let c1 = sxy * sy - sx * syy;
-            let c2 = sx * sxy - sxx * sy;
-            let det = s0 * c0 + sx * c1 + sy * c2;
-            if det > 1e-3 * s0 * s0 * s0 {
-                for c in 0..dim {
-                    value[c] =
-                        ((c0 * acc[c] + c1 * acc[dim + c] + c2 * acc[2 * dim + c]) / det) as f32;
-                }
-                return;
-            }
-        }
-        for c in 0..dim {
-            value[c] = (acc[c] / s0) as f32;
-        }
-    }
 }

@@ -5,6 +5,7 @@
 
 pub mod curvature;
 pub mod expmap;
+pub mod fan_filter;
 pub mod fans;
 pub mod heat;
 pub mod laplacian;

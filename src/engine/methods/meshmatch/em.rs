@@ -704,8 +704,10 @@ impl<'a> CoarseToFine<'a> {
         )?;
         let (allowed, warning) = self.usable_sources(level, src_sampler.charts())?;
         drop(src_sampler);
-        let tgt_sampler =
+        let mut tgt_sampler =
             FanSampler::new(tgt_surface, &tgt_levels.frames[level], &fan_params, control)?;
+        // The target's colours are sampled at every EM iteration: keep the filter weights.
+        tgt_sampler.cache_weights(control)?;
         let stencil = VoteStencil::build(tgt_sampler.charts(), radius);
         let centers: Vec<[f32; 3]> = src_colors[level]
             .chunks_exact(3)
