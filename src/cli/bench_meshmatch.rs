@@ -229,7 +229,7 @@ pub fn run(assets: &Path, runs: usize) -> Result<(), String> {
             "~100 s + 160 s preprocessing",
         ),
         (
-            "whole transfer (load → export, COLOR_0 on a 100k-vertex refined copy)",
+            "whole transfer (load → export, base colour in a generated atlas)",
             median(exhaustive.whole.clone()),
             "—",
         ),

@@ -17,6 +17,7 @@
 
 pub mod cholesky;
 pub mod lanczos;
+pub mod simd_state;
 pub mod sparse;
 
 pub use cholesky::{NumericCholesky, SymbolicCholesky};

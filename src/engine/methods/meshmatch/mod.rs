@@ -164,6 +164,12 @@ const INPUT_TRIANGLE_BYTES: u64 = 2048;
 /// Bytes per fan sample (ring × spoke) of a synthesis vertex: its colour in the source and
 /// target fans and its chart position.
 const FAN_SAMPLE_BYTES: u64 = 32;
+/// Filter weights kept per target fan sample, per squared `fan_radius` (the filter's reach is
+/// half the fan radius, so the weights grow with its square): measured about 10 per sample at
+/// the default radius 3 on Spot at 64K (peak 628 MiB against 357 MiB without them); 1.25 leaves
+/// room for irregular meshes. Each weight is 8 bytes, plus a 4-byte offset per sample; at most
+/// [`em::MAX_CHART_VERTICES`] weights per sample.
+const FAN_WEIGHTS_PER_SQUARED_RADIUS: f64 = 1.25;
 
 /// Which shape features describe a patch's place on the shape (§4.1).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
@@ -345,17 +351,23 @@ impl MeshMatchParams {
     }
 
     /// Estimated peak bytes of the synthesis: (target + source synthesis vertices) ×
-    /// (1,280 + 32 × rings × spokes). At the default fans that is about 3 KiB per vertex and
-    /// mesh (the 64K + 64K benchmark: 376 MiB estimated, 389 MiB peak resident measured for the
-    /// whole process). An unset `source_samples` counts as its largest default, 4 × `samples`
-    /// up to 262,144.
+    /// (1,280 + 32 × rings × spokes), plus the target's kept fan filter weights: target
+    /// vertices × rings × spokes × (4 + 8 × ⌈1.25 × fan_radius²⌉). At the default fans that is
+    /// about 3 KiB per vertex and mesh plus 5.4 KiB per target vertex (the 64K + 64K benchmark:
+    /// 1.25 GiB estimated with the default `source_samples`, 628 MiB peak resident measured for
+    /// the whole process). An unset `source_samples` counts as its largest default,
+    /// 4 × `samples` up to 262,144.
     pub fn working_set_bytes(&self) -> u64 {
         let target = self.samples as u64;
         let source = self
             .source_samples
             .map_or((4 * target).min(MAX_SAMPLES as u64), |s| s as u64);
         let fan = (self.rings * self.spokes) as u64;
+        let weights = (FAN_WEIGHTS_PER_SQUARED_RADIUS * (self.fan_radius as f64).powi(2))
+            .ceil()
+            .min(em::MAX_CHART_VERTICES as f64) as u64;
         (target + source) * (VERTEX_BYTES + FAN_SAMPLE_BYTES * fan)
+            + target * fan * (4 + 8 * weights)
     }
 
     /// Checks every range (those of the derived schema, nested `hks`, `affinity` and `example`
