@@ -12,7 +12,7 @@ use retex::engine::asset::BlobSet;
 use retex::engine::control::{Control, StageTiming};
 use retex::engine::pipeline::{transfer, ModelInput, TransferInput};
 
-fn median(mut v: Vec<f64>) -> f64 {
+pub(super) fn median(mut v: Vec<f64>) -> f64 {
     if v.is_empty() {
         return f64::NAN;
     }
@@ -30,24 +30,24 @@ pub(super) fn peak_rss_mib() -> Option<f64> {
 
 /// A run's stage timings (the job report's `timings`, measured by `Control`) summed by phase.
 #[derive(Default)]
-struct Phases {
+pub(super) struct Phases {
     /// From `meshmatch: hierarchy` up to `meshmatch: features`.
-    hierarchy: f64,
+    pub hierarchy: f64,
     /// From `meshmatch: features` up to the first level.
-    features: f64,
+    pub features: f64,
     /// Every `meshmatch level …` stage.
-    levels: f64,
+    pub levels: f64,
     /// Stages of the finest level outside its iterations (source fans, charts, target fan weights,
     /// stencil, first vote).
-    finest_setup: f64,
+    pub finest_setup: f64,
     /// Per finest-level iteration: target fans, E-step, vote.
-    fans: Vec<f64>,
-    e_step: Vec<f64>,
-    vote: Vec<f64>,
+    pub fans: Vec<f64>,
+    pub e_step: Vec<f64>,
+    pub vote: Vec<f64>,
 }
 
 impl Phases {
-    fn of(timings: &[StageTiming]) -> Phases {
+    pub(super) fn of(timings: &[StageTiming]) -> Phases {
         // "meshmatch level a/b[ iteration k]: name": the finest level is a == b.
         let level = |stage: &str| -> Option<(bool, bool, String)> {
             let rest = stage.strip_prefix("meshmatch level ")?;
@@ -99,56 +99,68 @@ impl Phases {
     }
 }
 
-struct Measured {
-    whole: Vec<f64>,
-    synth: Vec<f64>,
-    hierarchy: Vec<f64>,
-    features: Vec<f64>,
-    e_step: Vec<f64>,
-    vote: Vec<f64>,
-    fans: Vec<f64>,
-    level0_setup: Vec<f64>,
-    energy: f64,
-    coherence: f64,
-    completeness: f64,
+/// Stage timings over the runs of one pair (every finest-level iteration of every run).
+#[derive(Default)]
+pub(super) struct Measured {
+    pub whole: Vec<f64>,
+    pub synth: Vec<f64>,
+    pub hierarchy: Vec<f64>,
+    pub features: Vec<f64>,
+    pub e_step: Vec<f64>,
+    pub vote: Vec<f64>,
+    pub fans: Vec<f64>,
+    pub level0_setup: Vec<f64>,
+    pub energy: f64,
+    pub coherence: f64,
+    pub completeness: f64,
+    /// Synthesis vertices of the finest level: (target, source).
+    pub vertices: (usize, usize),
+    /// Levels of the hierarchy.
+    pub levels: usize,
 }
 
-fn measure(assets: &Path, runs: usize, randomized: bool) -> Result<Measured, String> {
-    let read = |rel: &str| -> Result<(String, BlobSet), String> {
-        BlobSet::from_path(&assets.join(rel)).map_err(|e| format!("{rel}: {e}"))
-    };
-    let (sm, sb) = read("src_spot_keenan/spot_textured_derived.glb")?;
-    let (tm, tb) = read("tgt_spot_remeshed_odedstein/spot_derived.glb")?;
+/// A model for the benchmark: the name of its main file and the files.
+pub(super) type Model = (String, BlobSet);
+
+/// Reads a shared asset.
+pub(super) fn read_asset(assets: &Path, rel: &str) -> Result<Model, String> {
+    BlobSet::from_path(&assets.join(rel)).map_err(|e| format!("{rel}: {e}"))
+}
+
+/// Times `runs` MeshMatch transfers of `source` onto `target` (64K samples plus `params`), and,
+/// when `fidelity`, one more untimed run that measures coherence and completeness.
+pub(super) fn measure(
+    (source, target): (&Model, &Model),
+    params: serde_json::Value,
+    runs: usize,
+    fidelity: bool,
+) -> Result<Measured, String> {
     let mut m = Measured {
-        whole: Vec::new(),
-        synth: Vec::new(),
-        hierarchy: Vec::new(),
-        features: Vec::new(),
-        e_step: Vec::new(),
-        vote: Vec::new(),
-        fans: Vec::new(),
-        level0_setup: Vec::new(),
         energy: f64::NAN,
         coherence: f64::NAN,
         completeness: f64::NAN,
+        ..Measured::default()
     };
     // The last run also measures fidelity (not timed).
-    for run in 0..=runs {
+    for run in 0..runs + usize::from(fidelity) {
         let quality = run == runs;
+        let mut all = serde_json::json!({"samples": 65536, "measure_fidelity": quality,
+                                         "write_nnf": false});
+        if let (Some(all), Some(extra)) = (all.as_object_mut(), params.as_object()) {
+            all.extend(extra.clone());
+        }
         let constraints: Constraints = serde_json::from_value(serde_json::json!({
-            "version": 1, "method": "meshmatch",
-            "params": {"samples": 65536, "randomized_rotations": randomized,
-                       "measure_fidelity": quality, "write_nnf": false}
+            "version": 1, "method": "meshmatch", "params": all
         }))
         .map_err(|e| e.to_string())?;
         let input = TransferInput::pair(
             ModelInput {
-                main: &sm,
-                blobs: &sb,
+                main: &source.0,
+                blobs: &source.1,
             },
             ModelInput {
-                main: &tm,
-                blobs: &tb,
+                main: &target.0,
+                blobs: &target.1,
             },
             constraints,
         );
@@ -170,11 +182,11 @@ fn measure(assets: &Path, runs: usize, randomized: bool) -> Result<Measured, Str
         m.e_step.extend(p.e_step);
         m.vote.extend(p.vote);
         m.fans.extend(p.fans);
-        let finest = s["levels"]
-            .as_array()
-            .and_then(|l| l.last())
-            .cloned()
-            .unwrap_or_default();
+        let levels = s["levels"].as_array().cloned().unwrap_or_default();
+        m.levels = levels.len();
+        let finest = levels.last().cloned().unwrap_or_default();
+        let count = |key: &str| finest[key].as_u64().unwrap_or(0) as usize;
+        m.vertices = (count("target_vertices"), count("source_vertices"));
         let its = finest["iterations"].as_array().cloned().unwrap_or_default();
         if let Some(it) = its.last() {
             m.energy = it["energy"].as_f64().unwrap_or(f64::NAN);
@@ -186,8 +198,16 @@ fn measure(assets: &Path, runs: usize, randomized: bool) -> Result<Measured, Str
 /// Runs the benchmark and prints the table.
 pub fn run(assets: &Path, runs: usize) -> Result<(), String> {
     let runs = runs.max(1);
-    let exhaustive = measure(assets, runs, false)?;
-    let randomized = measure(assets, runs, true)?;
+    let source = read_asset(assets, "src_spot_keenan/spot_textured_derived.glb")?;
+    let target = read_asset(assets, "tgt_spot_remeshed_odedstein/spot_derived.glb")?;
+    let pair = (&source, &target);
+    let exhaustive = measure(pair, serde_json::json!({}), runs, true)?;
+    let randomized = measure(
+        pair,
+        serde_json::json!({"randomized_rotations": true}),
+        runs,
+        true,
+    )?;
     let peak = peak_rss_mib();
     let input = "Spot → remeshed Spot, 64K-vertex target and source, 8 HKS + up, 3×18 RGB fans";
     println!("| stage | input | retex (median of {runs}) | MeshMatch paper |");
@@ -257,5 +277,5 @@ pub fn run(assets: &Path, runs: usize) -> Result<(), String> {
     if let Some(p) = peak {
         println!("peak resident memory of the process: {p:.0} MiB");
     }
-    Ok(())
+    super::bench_meshmatch_pairs::run(assets, runs)
 }

@@ -6,6 +6,7 @@ pub mod bench_correlation;
 pub mod bench_elastiface;
 pub mod bench_geometry;
 pub mod bench_meshmatch;
+pub mod bench_meshmatch_pairs;
 pub mod bench_pattern;
 pub mod inspect;
 pub mod preview;

@@ -57,6 +57,7 @@ mod pattern;
 mod pattern_fit;
 mod pattern_hierarchy;
 mod preview;
+mod primitives_capsule;
 mod project_transfer;
 mod ray_features;
 mod shared_pairs;

@@ -275,7 +275,27 @@ pub fn glb_container(mut text: Vec<u8>, mut bin: Vec<u8>) -> Result<Vec<u8>, Exp
 /// A GLB of one triangle mesh: POSITION (with the accessor bounds glTF requires) and u32
 /// indices; no UVs, normals or material (a target for the methods that generate an atlas).
 pub fn mesh_glb(positions: &[[f32; 3]], faces: &[[u32; 3]]) -> Result<Vec<u8>, ExportError> {
-    let mut bin = Vec::with_capacity(positions.len() * 12 + faces.len() * 12);
+    triangle_mesh_glb(positions, faces, None, false)
+}
+
+/// A GLB of one triangle mesh with a plain white, non-metallic material and, when given,
+/// per-vertex COLOR_0 (linear RGBA floats): a painted source or a bare target made in code
+/// (benchmarks, tests).
+pub fn colored_mesh_glb(
+    positions: &[[f32; 3]],
+    faces: &[[u32; 3]],
+    colors: Option<&[[f32; 4]]>,
+) -> Result<Vec<u8>, ExportError> {
+    triangle_mesh_glb(positions, faces, colors, true)
+}
+
+fn triangle_mesh_glb(
+    positions: &[[f32; 3]],
+    faces: &[[u32; 3]],
+    colors: Option<&[[f32; 4]]>,
+    material: bool,
+) -> Result<Vec<u8>, ExportError> {
+    let mut bin = Vec::with_capacity(positions.len() * 28 + faces.len() * 12);
     let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
     for p in positions {
         for k in 0..3 {
@@ -288,21 +308,41 @@ pub fn mesh_glb(positions: &[[f32; 3]], faces: &[[u32; 3]]) -> Result<Vec<u8>, E
     for v in faces.iter().flatten() {
         bin.extend_from_slice(&v.to_le_bytes());
     }
-    let json = json!({
+    let idx_len = bin.len() - pos_len;
+    let mut attributes = json!({"POSITION": 0});
+    let mut views = vec![
+        json!({"buffer": 0, "byteOffset": 0, "byteLength": pos_len, "target": 34962}),
+        json!({"buffer": 0, "byteOffset": pos_len, "byteLength": idx_len, "target": 34963}),
+    ];
+    let mut accessors = vec![
+        json!({"bufferView": 0, "componentType": 5126, "count": positions.len(), "type": "VEC3", "min": lo, "max": hi}),
+        json!({"bufferView": 1, "componentType": 5125, "count": faces.len() * 3, "type": "SCALAR"}),
+    ];
+    if let Some(colors) = colors {
+        let offset = bin.len();
+        for c in colors.iter().flatten() {
+            bin.extend_from_slice(&c.to_le_bytes());
+        }
+        attributes["COLOR_0"] = 2.into();
+        views.push(json!({"buffer": 0, "byteOffset": offset, "byteLength": bin.len() - offset, "target": 34962}));
+        accessors.push(
+            json!({"bufferView": 2, "componentType": 5126, "count": colors.len(), "type": "VEC4"}),
+        );
+    }
+    let mut primitive = json!({"attributes": attributes, "indices": 1});
+    let mut json = json!({
         "asset": {"version": "2.0"},
         "scene": 0,
         "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
         "buffers": [{"byteLength": bin.len()}],
-        "bufferViews": [
-            {"buffer": 0, "byteOffset": 0, "byteLength": pos_len, "target": 34962},
-            {"buffer": 0, "byteOffset": pos_len, "byteLength": bin.len() - pos_len, "target": 34963}
-        ],
-        "accessors": [
-            {"bufferView": 0, "componentType": 5126, "count": positions.len(), "type": "VEC3", "min": lo, "max": hi},
-            {"bufferView": 1, "componentType": 5125, "count": faces.len() * 3, "type": "SCALAR"}
-        ]
+        "bufferViews": views,
+        "accessors": accessors,
     });
+    if material {
+        json["materials"] = json!([{"pbrMetallicRoughness": {"baseColorFactor": [1, 1, 1, 1], "metallicFactor": 0}}]);
+        primitive["material"] = 0.into();
+    }
+    json["meshes"] = json!([{"primitives": [primitive]}]);
     glb_container(serde_json::to_vec(&json)?, bin)
 }

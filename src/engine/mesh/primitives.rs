@@ -1,5 +1,5 @@
 //! Analytic meshes for tests and benchmarks: geodesic icosphere, UV sphere, planar grid, open
-//! cylinder. All are [`Surface::from_triangles`] surfaces (no back-links), wound
+//! cylinder, capsule. All are [`Surface::from_triangles`] surfaces (no back-links), wound
 //! counter-clockwise around the outward normal (for the grid: `+z`).
 //!
 //! Vertex counts: [`icosphere`] with frequency `n` has `10 n² + 2` vertices (n = 32 → 10 242,
@@ -238,6 +238,50 @@ pub fn cylinder(radius: f64, height: f64, segments: usize, rings: usize) -> Surf
             faces.push([id(s, r), id(s + 1, r + 1), id(s, r + 1)]);
         }
     }
+    Surface::from_triangles(positions, faces)
+}
+
+/// A capsule along +x: a cylinder of `radius` whose rings sit at the x of `profile` (increasing),
+/// `around` segments around, closed by hemispherical caps of 7 rings each plus a pole; `warp`
+/// moves x afterwards (a stretched copy with the same connectivity). Outward counter-clockwise
+/// faces; `2 + around · (profile.len() + 14)` vertices.
+pub fn capsule(radius: f32, profile: &[f32], around: usize, warp: impl Fn(f32) -> f32) -> Surface {
+    const CAP_RINGS: usize = 8;
+    let around = around.max(3);
+    let (x0, x1) = (profile[0], profile[profile.len() - 1]);
+    let quarter = |k: usize| std::f32::consts::FRAC_PI_2 * k as f32 / CAP_RINGS as f32;
+    // Rings as (x, ring radius), from the left pole to the right pole (poles excluded).
+    let mut rings: Vec<(f32, f32)> = (1..CAP_RINGS)
+        .map(|k| (x0 - radius * quarter(k).cos(), radius * quarter(k).sin()))
+        .collect();
+    rings.extend(profile.iter().map(|&x| (x, radius)));
+    rings.extend(
+        (1..CAP_RINGS)
+            .rev()
+            .map(|k| (x1 + radius * quarter(k).cos(), radius * quarter(k).sin())),
+    );
+    let mut positions = vec![[warp(x0 - radius), 0.0, 0.0]];
+    for &(x, r) in &rings {
+        for j in 0..around {
+            let t = std::f32::consts::TAU * j as f32 / around as f32;
+            positions.push([warp(x), r * t.cos(), r * t.sin()]);
+        }
+    }
+    positions.push([warp(x1 + radius), 0.0, 0.0]);
+    let last = positions.len() as u32 - 1;
+    let at = |ring: usize, j: usize| (1 + ring * around + j % around) as u32;
+    let mut faces = Vec::with_capacity(2 * around * rings.len());
+    faces.extend((0..around).map(|j| [0, at(0, j + 1), at(0, j)]));
+    for ring in 0..rings.len() - 1 {
+        for j in 0..around {
+            let (a, b) = (at(ring, j), at(ring, j + 1));
+            let (c, d) = (at(ring + 1, j), at(ring + 1, j + 1));
+            faces.push([a, b, d]);
+            faces.push([a, d, c]);
+        }
+    }
+    let r = rings.len() - 1;
+    faces.extend((0..around).map(|j| [last, at(r, j), at(r, j + 1)]));
     Surface::from_triangles(positions, faces)
 }
 
