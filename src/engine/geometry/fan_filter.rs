@@ -184,6 +184,16 @@ fn nearest_vertex(s: [f32; 2], vertex: &[u32], coords: &[[f32; 2]]) -> u32 {
 }
 
 impl Kernel {
+    /// The kernel of Gaussian width `sigma` cut at `reach` (chart units).
+    pub fn new(sigma: f32, reach: f32, filter: FanFilter) -> Kernel {
+        Kernel {
+            inv_two_sigma2: 1.0 / (2.0 * sigma * sigma),
+            inv_sigma: 1.0 / sigma,
+            reach2: reach * reach,
+            filter,
+        }
+    }
+
     /// Writes the filter weights of the sample at chart position `s` over the band in `scratch`
     /// into `scratch.weight_vertex` / `scratch.weight`; false when no band vertex is in reach.
     fn weights(&self, s: [f32; 2], scratch: &mut Scratch) -> bool {

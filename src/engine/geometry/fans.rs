@@ -306,11 +306,13 @@ pub fn geodesic_fans(
     let connection = Connection::new(surface, frames);
     let stage = control.stage("geodesic fans", nv as u64)?;
     let mut data = vec![0.0f32; nv * shape.len()];
-    let kernel = Kernel {
-        inv_two_sigma2: 1.0 / (2.0 * sigma * sigma),
-        inv_sigma: 1.0 / sigma,
-        reach2: reach * reach,
-        filter: params.filter,
+    let kernel = Kernel::new(sigma, reach, params.filter);
+    let layout = Layout {
+        shape,
+        radius,
+        reach,
+        samples: &samples,
+        area: &area,
     };
     data.par_chunks_mut(CHUNK * shape.len().max(1))
         .enumerate()
@@ -320,13 +322,6 @@ pub fn geodesic_fans(
                 for (i, fan) in out.chunks_exact_mut(shape.len()).enumerate() {
                     let s = chunk * CHUNK + i;
                     let chart = builder.build(&connection, s, radius + reach, &chart_params);
-                    let layout = Layout {
-                        shape,
-                        radius,
-                        reach,
-                        samples: &samples,
-                        area: &area,
-                    };
                     layout.fill(chart.vertex, chart.coords, &kernel, field, scratch, fan);
                     // Per source: a chart can be large when the radius is.
                     stage.tick(1)?;
@@ -422,12 +417,7 @@ impl FanSampler {
     }
 
     fn kernel(&self) -> Kernel {
-        Kernel {
-            inv_two_sigma2: 1.0 / (2.0 * self.sigma * self.sigma),
-            inv_sigma: 1.0 / self.sigma,
-            reach2: self.reach * self.reach,
-            filter: self.params.filter,
-        }
+        Kernel::new(self.sigma, self.reach, self.params.filter)
     }
 
     fn layout(&self) -> Layout<'_> {
