@@ -39,6 +39,8 @@ use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, LltRef, SymbolicCholesky as FaerSymbolic, SymmetricOrdering,
 };
 use faer::{Conj, Mat, MatMut, Par, Side};
+
+use crate::engine::linalg::simd_state::{clear_upper_vector_state, clear_upper_vector_state_here};
 use rayon::prelude::*;
 
 use super::laplacian::{cotan_laplacian, GeometryError, Laplacian, LaplacianParams};
@@ -275,7 +277,7 @@ impl BlockFactor {
         let mut l_values = vec![0.0; symbolic.len_val()];
         let scratch = symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default());
         let mut mem = MemBuffer::try_new(scratch).map_err(|e| fail(format!("{e:?}")))?;
-        symbolic
+        let factored = symbolic
             .factorize_numeric_llt::<f64>(
                 &mut l_values,
                 matrix.as_faer(),
@@ -285,7 +287,9 @@ impl BlockFactor {
                 MemStack::new(&mut mem),
                 Default::default(),
             )
-            .map_err(|_| GeometryError::Linalg(LinalgError::NotPositiveDefinite { column: 0 }))?;
+            .map_err(|_| GeometryError::Linalg(LinalgError::NotPositiveDefinite { column: 0 }));
+        clear_upper_vector_state();
+        factored?;
         Ok(Self { symbolic, l_values })
     }
 
@@ -303,6 +307,7 @@ impl BlockFactor {
                 Par::Seq,
                 MemStack::new(&mut mem),
             );
+            clear_upper_vector_state_here();
         });
     }
 }

@@ -23,6 +23,8 @@ use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, LltRef, SymbolicCholesky as FaerSymbolic, SymmetricOrdering,
 };
 use faer::{Conj, MatMut, Par, Side};
+
+use super::simd_state::{clear_upper_vector_state, clear_upper_vector_state_here};
 use rayon::prelude::*;
 
 use super::sparse::{SparsityPattern, SymmetricMatrix};
@@ -149,20 +151,27 @@ impl SymbolicCholesky {
             MemBuffer::try_new(sym.factorize_numeric_llt_scratch::<f64>(par, Default::default()))
                 .map_err(|e| LinalgError::Factorization(format!("{e:?}")))?;
         let a = faer::sparse::SparseColMatRef::new(pattern.as_faer(), values);
-        sym.factorize_numeric_llt::<f64>(
-            &mut l_values,
-            a,
-            Side::Lower,
-            LltRegularization::default(),
-            par,
-            MemStack::new(&mut mem),
-            Default::default(),
-        )
-        .map_err(|e| match e {
-            LltError::NonPositivePivot { index } => {
-                LinalgError::NotPositiveDefinite { column: index }
-            }
-        })?;
+        let factored = sym
+            .factorize_numeric_llt::<f64>(
+                &mut l_values,
+                a,
+                Side::Lower,
+                LltRegularization::default(),
+                par,
+                MemStack::new(&mut mem),
+                Default::default(),
+            )
+            .map_err(|e| match e {
+                LltError::NonPositivePivot { index } => {
+                    LinalgError::NotPositiveDefinite { column: index }
+                }
+            });
+        if matches!(par, Par::Seq) {
+            clear_upper_vector_state_here();
+        } else {
+            clear_upper_vector_state();
+        }
+        factored?;
         Ok(NumericCholesky {
             symbolic: self.clone(),
             l_values,
@@ -254,6 +263,7 @@ impl NumericCholesky {
         let llt = LltRef::<'_, usize, f64>::new(sym, &self.l_values);
         let x = MatMut::from_column_major_slice_mut(&mut block, n, k);
         llt.solve_in_place_with_conj(Conj::No, x, Par::Seq, MemStack::new(&mut mem));
+        clear_upper_vector_state_here();
         for (b, col) in rhs.iter_mut().zip(block.chunks_exact(n)) {
             b.copy_from_slice(col);
         }
@@ -278,5 +288,6 @@ impl NumericCholesky {
         let llt = LltRef::<'_, usize, f64>::new(sym, &self.l_values);
         let rhs = MatMut::from_column_major_slice_mut(x, n, 1);
         llt.solve_in_place_with_conj(Conj::No, rhs, Par::Seq, MemStack::new(&mut mem));
+        clear_upper_vector_state_here();
     }
 }

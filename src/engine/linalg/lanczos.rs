@@ -34,6 +34,8 @@ use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::evd::{self_adjoint_evd, self_adjoint_evd_scratch, ComputeEigenvectors};
 use faer::linalg::matmul::matmul;
 use faer::{Accum, Mat, MatMut, MatRef, Par};
+
+use super::simd_state::clear_upper_vector_state_here;
 use rayon::prelude::*;
 
 use super::{LinalgError, NumericCholesky};
@@ -120,15 +122,16 @@ pub fn symmetric_eigen(a: MatRef<'_, f64>) -> Result<(Vec<f64>, Mat<f64>), Lancz
     let scratch =
         self_adjoint_evd_scratch::<f64>(n, ComputeEigenvectors::Yes, Par::Seq, Default::default());
     let mut mem = MemBuffer::new(scratch);
-    self_adjoint_evd(
+    let result = self_adjoint_evd(
         a,
         s.as_mut(),
         Some(u.as_mut()),
         Par::Seq,
         MemStack::new(&mut mem),
         Default::default(),
-    )
-    .map_err(|_| LanczosError::DenseEigen)?;
+    );
+    clear_upper_vector_state_here();
+    result.map_err(|_| LanczosError::DenseEigen)?;
     Ok(((0..n).map(|i| s[i]).collect(), u))
 }
 
@@ -147,6 +150,7 @@ fn gram(a: MatRef<'_, f64>, b: MatRef<'_, f64>) -> Mat<f64> {
                 1.0,
                 Par::Seq,
             );
+            clear_upper_vector_state_here();
             p
         })
         .collect();
@@ -171,7 +175,10 @@ fn product_into(
 ) {
     dst.par_row_chunks_mut(ROW_CHUNK)
         .zip(a.par_row_chunks(ROW_CHUNK))
-        .for_each(|(dc, ac)| matmul(dc, accum, ac, b, alpha, Par::Seq));
+        .for_each(|(dc, ac)| {
+            matmul(dc, accum, ac, b, alpha, Par::Seq);
+            clear_upper_vector_state_here();
+        });
 }
 
 /// `diag(mass) · X`.

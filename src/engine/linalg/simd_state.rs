@@ -7,15 +7,21 @@
 //! licence. Measured on this 2-core AVX-512 machine: MeshMatch's 64K transfer took 39-43 s
 //! instead of 18 s when its HKS spectra ran on the pool's threads, and every later stage (fans,
 //! E-step, vote: plain SSE code) was 2-4× slower. Call this after a faer-heavy step that other
-//! work follows on the same threads.
+//! work follows on the same threads. The linalg module does so wherever faer returns
+//! (Cholesky factor and solves, the dense eigensolver, the Lanczos products, the Laplace
+//! spectrum), so its callers need not.
 
-/// `vzeroupper` on the calling thread and on every rayon worker (a no-op without AVX).
+/// `vzeroupper` on the calling thread and on every rayon worker (a no-op without AVX): after
+/// faer ran with `Par::rayon`.
 pub fn clear_upper_vector_state() {
-    clear_here();
-    rayon::broadcast(|_| clear_here());
+    clear_upper_vector_state_here();
+    rayon::broadcast(|_| clear_upper_vector_state_here());
 }
 
-fn clear_here() {
+/// `vzeroupper` (and zmm16-31) on the calling thread only: after faer ran with `Par::Seq`, on
+/// the thread that called it (a few cycles).
+#[inline]
+pub fn clear_upper_vector_state_here() {
     #[cfg(target_arch = "x86_64")]
     {
         if std::arch::is_x86_feature_detected!("avx") {

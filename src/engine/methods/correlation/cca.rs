@@ -208,9 +208,9 @@ fn sym_eigen(
     a: impl Fn(usize, usize) -> f64,
 ) -> Result<(Vec<f64>, Vec<Vec<f64>>), MethodError> {
     let m = Mat::<f64>::from_fn(n, n, |i, j| 0.5 * (a(i, j) + a(j, i)));
-    let e = m
-        .self_adjoint_eigen(Side::Lower)
-        .map_err(|e| MethodError::Internal(format!("eigen-decomposition failed: {e:?}")))?;
+    let e = m.self_adjoint_eigen(Side::Lower);
+    crate::engine::linalg::simd_state::clear_upper_vector_state_here();
+    let e = e.map_err(|e| MethodError::Internal(format!("eigen-decomposition failed: {e:?}")))?;
     let s = e.S().column_vector();
     let u = e.U();
     let mut values = Vec::with_capacity(n);

@@ -226,8 +226,6 @@ fn shape_features(
         } else {
             automatic_features(tgt.surface(ft), &params.hks, control)?
         };
-        // faer's wide vector kernels ran here: see `clear_upper_vector_state`.
-        crate::engine::linalg::simd_state::clear_upper_vector_state();
         src_parts.push((a.dim, a.values));
         tgt_parts.push((b.dim, b.values));
     }
