@@ -8,10 +8,31 @@ mod meshmatch_common;
 
 use common::planar_pattern;
 use common::*;
+use std::path::Path;
 use std::process::Command;
 
 fn retex() -> Command {
     Command::new(env!("CARGO_BIN_EXE_retex"))
+}
+
+/// `retex transfer` of `source` onto `target` writing `out` and the artifacts into
+/// `artifacts/` next to it; asserts that it exits 0.
+fn transfer_with_artifacts(source: &Path, target: &Path, constraints: &Path, out: &Path) {
+    let artifacts = out.parent().unwrap().join("artifacts");
+    let status = retex()
+        .args(["transfer", "--quiet", "--source"])
+        .arg(source)
+        .arg("--target")
+        .arg(target)
+        .arg("--constraints")
+        .arg(constraints)
+        .arg("--out")
+        .arg(out)
+        .arg("--artifacts")
+        .arg(artifacts)
+        .status()
+        .unwrap();
+    assert!(status.success(), "retex transfer {} failed", out.display());
 }
 
 #[test]
@@ -25,20 +46,12 @@ fn transfer_writes_a_valid_model_and_artifacts() {
     )
     .unwrap();
     let out = dir.join("fox_on_fox.glb");
-    let status = retex()
-        .args(["transfer", "--quiet", "--source"])
-        .arg(test_data("src_fox_khronos/glTF/Fox.gltf"))
-        .arg("--target")
-        .arg(test_data("src_fox_khronos/glTF-Binary/Fox.glb"))
-        .arg("--constraints")
-        .arg(&constraints)
-        .arg("--out")
-        .arg(&out)
-        .arg("--artifacts")
-        .arg(dir.join("artifacts"))
-        .status()
-        .unwrap();
-    assert!(status.success());
+    transfer_with_artifacts(
+        &test_data("src_fox_khronos/glTF/Fox.gltf"),
+        &test_data("src_fox_khronos/glTF-Binary/Fox.glb"),
+        &constraints,
+        &out,
+    );
     assert_validator_clean(&std::fs::read(&out).unwrap(), "cli_fox_on_fox.glb");
     let report: serde_json::Value =
         serde_json::from_slice(&std::fs::read(dir.join("artifacts/report.json")).unwrap()).unwrap();
@@ -366,20 +379,12 @@ fn meshmatch_texture_update_runs_through_the_cli() {
                    "update": {"copy": {"faces": [{"mesh": 0, "primitive": 0, "triangles": pair.unmoved}]}}}});
     std::fs::write(dir.join("c.json"), constraints.to_string()).unwrap();
     let out = dir.join("updated.glb");
-    let status = retex()
-        .args(["transfer", "--quiet", "--source"])
-        .arg(dir.join("source.glb"))
-        .arg("--target")
-        .arg(dir.join("target.glb"))
-        .arg("--constraints")
-        .arg(dir.join("c.json"))
-        .arg("--out")
-        .arg(&out)
-        .arg("--artifacts")
-        .arg(dir.join("artifacts"))
-        .status()
-        .unwrap();
-    assert!(status.success());
+    transfer_with_artifacts(
+        &dir.join("source.glb"),
+        &dir.join("target.glb"),
+        &dir.join("c.json"),
+        &out,
+    );
     let model = std::fs::read(&out).unwrap();
     assert_validator_clean(&model, "cli_meshmatch_update.glb");
     let report: serde_json::Value =
