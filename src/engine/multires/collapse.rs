@@ -18,9 +18,15 @@
 //!   boundary turns by at most `max_boundary_turn_degrees` at both ends (so corners stay and the
 //!   midpoint stays on the boundary curve); an edge from a boundary vertex to an interior one
 //!   collapses onto the boundary vertex (the one exception to the midpoint rule);
-//! - no surviving face turns by more than `max_normal_change_degrees` (so none flips), and no
-//!   surviving face drops below `min_triangle_quality` unless it was already worse. Quality is
+//! - no surviving face turns by more than `max_normal_change_degrees` (so none flips), and the
+//!   worst surviving face around the edge is at least `min_triangle_quality` or no worse than the
+//!   worst face there before (the two faces that disappear included). Quality is
 //!   `4√3·area / (l₀² + l₁² + l₂²)`: 1 for an equilateral triangle, 0 for a degenerate one.
+//!   The rule compares the worst faces, not each face with its old self: a per-face rule refuses
+//!   every collapse next to a fan of slivers (the 256-face poles of a UV capsule: moving a ring
+//!   vertex half a step makes some neighbouring sliver a little worse), so the hierarchy stalled
+//!   at a few thousand vertices with the poles intact; the worst-face rule lets the slivers be
+//!   collapsed away and still never lowers a level's worst face below min(threshold, before).
 //!
 //! Rejected edges are retried (up to [`RETRY_ROUNDS`] times) once other collapses have changed
 //! their neighbourhood. Candidates are ordered by squared length, ties by the order they were
@@ -347,25 +353,30 @@ impl Mesh {
         } else {
             pb
         };
-        // Geometry of every surviving face around a and b.
+        // Geometry of every face around a and b: no surviving face turns too far, and the worst
+        // surviving face is no worse than min(min_quality, the worst face there before,
+        // including the two that disappear).
+        let (mut worst_before, mut worst_after) = (f64::INFINITY, f64::INFINITY);
         for (v, fs) in [(a, &self.vfaces[ai]), (b, &self.vfaces[bi])] {
             for &f in fs {
                 let face = self.faces[f as usize];
+                let old = face.map(|x| self.pos[x as usize]);
+                let (q0, n0) = quality_and_normal(old);
+                worst_before = worst_before.min(q0);
                 if face.contains(&a) && face.contains(&b) {
                     continue;
                 }
-                let old = face.map(|x| self.pos[x as usize]);
                 let new = face.map(|x| if x == v { p } else { self.pos[x as usize] });
-                let (q0, n0) = quality_and_normal(old);
                 let (q1, n1) = quality_and_normal(new);
                 let (l0, l1) = (dot(n0, n0).sqrt(), dot(n1, n1).sqrt());
                 if l1 <= 0.0 || dot(n0, n1) <= rules.cos_max_normal_change * l0 * l1 {
                     return None;
                 }
-                if q1 < rules.min_quality && q1 < q0 {
-                    return None;
-                }
+                worst_after = worst_after.min(q1);
             }
+        }
+        if worst_after < rules.min_quality && worst_after < worst_before {
+            return None;
         }
         Some(p)
     }

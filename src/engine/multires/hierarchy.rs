@@ -40,8 +40,9 @@ pub struct HierarchyParams {
     /// the coarsest level has about 0.75 to 1.5 times this many vertices. Default: 128 (the
     /// paper's "approximately 128"). Range: 4..=1,000,000.
     pub min_vertices: usize,
-    /// Smallest allowed triangle quality `4√3·area / Σ edge²` (1 = equilateral) of a face changed
-    /// by a collapse, unless the face was already worse. Default: 0.2. Range: [0, 0.9].
+    /// Smallest allowed triangle quality `4√3·area / Σ edge²` (1 = equilateral) of the worst face
+    /// a collapse leaves around its edge, unless the worst face there was already worse. Default:
+    /// 0.2. Range: [0, 0.9].
     pub min_triangle_quality: f32,
     /// Largest allowed rotation of a face normal by one collapse, degrees (anything above 90
     /// still forbids flips). Default: 60. Range: (0, 150].
