@@ -13,6 +13,8 @@
 //! source's colour, read at full resolution at the closest source point, and the rest is
 //! synthesized around it.
 
+use std::cell::OnceCell;
+
 use serde::Serialize;
 
 use crate::engine::asset::constraints::Constraints;
@@ -167,17 +169,20 @@ pub fn run(
                 .clamp(256, (4 * params.samples).min(super::MAX_SAMPLES))
         })
     };
+    // BVHs of the input surfaces, each built once when first needed (correspondences, the
+    // by-example or texture-update original).
+    let (src_input_bvh, tgt_input_bvh) = (OnceCell::new(), OnceCell::new());
+    let src_bvh =
+        || src_input_bvh.get_or_init(|| Bvh::build(&src_surface.positions, &src_surface.faces));
+    let tgt_bvh =
+        || tgt_input_bvh.get_or_init(|| Bvh::build(&tgt_surface.positions, &tgt_surface.faces));
     // Correspondences onto the input surfaces.
     let mut pairs = Vec::new();
     if !constraints.correspondences.is_empty() {
-        let (sb, tb) = (
-            Bvh::build(&src_surface.positions, &src_surface.faces),
-            Bvh::build(&tgt_surface.positions, &tgt_surface.faces),
-        );
         let resolved = resolve_on_surfaces(
             &constraints.correspondences,
-            (src_asset, &sb, &src_surface),
-            (target, &tb, &tgt_surface),
+            (src_asset, src_bvh(), &src_surface),
+            (target, tgt_bvh(), &tgt_surface),
             params.snap_tolerance,
         )?;
         for r in resolved {
@@ -205,11 +210,11 @@ pub fn run(
     // The full-resolution original read inside the painted (copied) region: the target's
     // surface in by-example mode, the source's in texture-update mode.
     let original_bvh = match (&painted, &params.update) {
-        (Some(_), _) => Some(Bvh::build(&tgt_surface.positions, &tgt_surface.faces)),
-        (None, Some(_)) => Some(Bvh::build(&src_surface.positions, &src_surface.faces)),
+        (Some(_), _) => Some(tgt_bvh()),
+        (None, Some(_)) => Some(src_bvh()),
         (None, None) => None,
     };
-    let copied = match (&params.update, &original_bvh) {
+    let copied = match (&params.update, original_bvh) {
         (Some(update), Some(bvh)) => {
             let region = copied_region(
                 update,
@@ -266,7 +271,7 @@ pub fn run(
     let copied_count = copied
         .as_ref()
         .map(|c| c.mask.iter().filter(|x| **x).count());
-    let original = match (painted, copied, &original_bvh) {
+    let original = match (painted, copied, original_bvh) {
         (Some(painted), _, Some(bvh)) => Some(Original {
             asset: target,
             input: &tgt_surface,
