@@ -14,11 +14,9 @@
 #[path = "../engine/elastiface_common.rs"]
 mod elastiface_common;
 
-use std::time::Duration;
-
 use serde_json::{json, Value};
 
-use crate::service_common::{get, submit, terminal, wait_for, Part, TestServer};
+use crate::service_common::{self as service, Part, TestServer};
 use elastiface_common::{
     constant, linear, mesh_glb, mesh_glb_with, normalize, psnr, sphere_color, sphere_constraints,
     sphere_point, stretched_sphere, texture_png, turn, uv_sphere, MeshData,
@@ -40,15 +38,8 @@ fn run_job(source: Vec<u8>, target: Vec<u8>, name: &str) -> (retex::engine::asse
             sphere_constraints(STRETCH, 10).to_string().into_bytes(),
         ),
     ];
-    let r = submit(base, &parts, &[]);
-    assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
-    let id = r.json()["id"].as_str().unwrap().to_string();
-    let job = wait_for(base, &id, Duration::from_secs(300), terminal);
-    assert_eq!(job["status"], "succeeded", "{job}");
-    let result = get(&format!("{base}/v1/jobs/{id}/result"));
-    assert_eq!(result.status, 200);
-    crate::common::assert_validator_clean(&result.body, name);
-    (crate::common::load_bytes(&result.body, name), job)
+    let (job, result) = service::run_job(base, &parts, name);
+    (crate::common::load_bytes(&result, name), job)
 }
 
 /// The fitted template's texel colours (linear) against the ideal map at the texel's template

@@ -8,9 +8,7 @@
 #[path = "../engine/meshmatch_common.rs"]
 mod meshmatch_common;
 
-use std::time::Duration;
-
-use crate::service_common::{get, submit, terminal, wait_for, Part, TestServer};
+use crate::service_common::{run_job, Part, TestServer};
 use meshmatch_common::{colored_points, update_copy_error, update_pair};
 
 #[test]
@@ -30,14 +28,7 @@ fn meshmatch_texture_update_runs_through_the_api() {
             constraints.to_string().into_bytes(),
         ),
     ];
-    let r = submit(base, &parts, &[]);
-    assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
-    let id = r.json()["id"].as_str().unwrap().to_string();
-    let job = wait_for(base, &id, Duration::from_secs(300), terminal);
-    assert_eq!(job["status"], "succeeded", "{job}");
-    let result = get(&format!("{base}/v1/jobs/{id}/result"));
-    assert_eq!(result.status, 200);
-    crate::common::assert_validator_clean(&result.body, "api_meshmatch_update.glb");
+    let (job, result) = run_job(base, &parts, "api_meshmatch_update.glb");
     let report = &job["report"]["method_report"];
     let (copied, total) = (
         report["copied_samples"].as_u64().unwrap(),
@@ -55,7 +46,7 @@ fn meshmatch_texture_update_runs_through_the_api() {
             .any(|w| w.as_str().unwrap().contains("update:")),
         "{warnings:?}"
     );
-    let (err, n) = update_copy_error(&colored_points(&result.body), 0.05, 1.9);
+    let (err, n) = update_copy_error(&colored_points(&result), 0.05, 1.9);
     assert!(
         n > 200 && err < 0.02,
         "copied part: error {err} over {n} points"

@@ -221,6 +221,20 @@ pub fn wait_for_with(
     }
 }
 
+/// Submits a job, waits up to 300 s for it to succeed, downloads the result and checks it with
+/// the Khronos validator (named `name` in the report); returns the job document and the result.
+pub fn run_job(base: &str, parts: &[Part<'_>], name: &str) -> (serde_json::Value, Vec<u8>) {
+    let r = submit(base, parts, &[]);
+    assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
+    let id = r.json()["id"].as_str().unwrap().to_string();
+    let job = wait_for(base, &id, Duration::from_secs(300), terminal);
+    assert_eq!(job["status"], "succeeded", "{job}");
+    let result = get(&format!("{base}/v1/jobs/{id}/result"));
+    assert_eq!(result.status, 200);
+    crate::common::assert_validator_clean(&result.body, name);
+    (job, result.body)
+}
+
 pub fn terminal(s: &str) -> bool {
     matches!(s, "succeeded" | "failed" | "canceled")
 }
