@@ -56,36 +56,56 @@ fn statistics(pair: &Pair, model: &[u8], from: f32) -> crate::meshmatch_common::
     )
 }
 
+/// Runs the update at the tests' density (16K samples), checks the output with the validator and
+/// keeps it as `name`; returns the output and the share of copied synthesis vertices.
+fn run_update(
+    pair: &Pair,
+    update: serde_json::Value,
+    name: &str,
+) -> (retex::engine::pipeline::TransferOutput, f64) {
+    let out = run(
+        pair,
+        "meshmatch",
+        serde_json::json!({"samples": 16384, "vertex_color_samples": 60000, "update": update}),
+    );
+    common::assert_validator_clean(&out.model, name);
+    save(&out.model, name);
+    let report = &out.report.method_report;
+    let copied = report["copied_samples"].as_u64().unwrap() as f64;
+    let total = report["target_samples"].as_u64().unwrap() as f64;
+    (out, copied / total)
+}
+
+/// The copied part (x in [0.05, `to`]) is the source's colour: at least `min_points` output
+/// points there, largest grey error under 0.02.
+fn assert_copied_exactly(points: &[([f32; 3], [f32; 3])], to: f32, min_points: usize) {
+    let (err, n) = copy_error(points, 0.05, to);
+    eprintln!("copied part: largest grey error {err:.4} over {n} points");
+    assert!(n > min_points, "only {n} output points in the copied part");
+    assert!(
+        err < 0.02,
+        "copied part differs from the source by {err:.3}"
+    );
+}
+
 #[test]
 fn texture_update_copies_the_unmoved_part_and_resynthesizes_the_lengthened_middle() {
     let pair = update_pair(4.0);
     let copy =
         serde_json::json!({"faces": [{"mesh": 0, "primitive": 0, "triangles": pair.unmoved}]});
-    let out = run(
+    let (out, copied) = run_update(
         &pair,
-        "meshmatch",
-        serde_json::json!({"samples": 16384, "vertex_color_samples": 60000,
-                           "update": {"copy": copy}}),
+        serde_json::json!({"copy": copy}),
+        "meshmatch_update.glb",
     );
-    common::assert_validator_clean(&out.model, "meshmatch_update.glb");
-    save(&out.model, "meshmatch_update.glb");
-    let report = &out.report.method_report;
-    let copied = report["copied_samples"].as_u64().unwrap() as f64;
-    let total = report["target_samples"].as_u64().unwrap() as f64;
     // The unmoved part is x < 2 plus the left cap: 31% of the area, 39% of the synthesis
     // vertices (the resampling keeps the target's denser rings where it was not stretched).
     assert!(
-        (0.3..0.48).contains(&(copied / total)),
-        "copied {copied} of {total} synthesis vertices"
+        (0.3..0.48).contains(&copied),
+        "copied {copied:.3} of the synthesis vertices"
     );
     let points = colored_points(&out.model);
-    let (err, n) = copy_error(&points, 0.05, 1.9);
-    eprintln!("copied part: largest grey error {err:.4} over {n} points");
-    assert!(n > 1000, "only {n} output points in the copied part");
-    assert!(
-        err < 0.02,
-        "copied part differs from the source by {err:.3}"
-    );
+    assert_copied_exactly(&points, 1.9, 1000);
 
     // The estimator on the copied part, whose answer is known.
     let copied_period = spectral_period(&points, 0.1, 1.9);
@@ -134,29 +154,14 @@ fn texture_update_copies_the_unmoved_part_and_resynthesizes_the_lengthened_middl
 #[test]
 fn texture_update_finds_the_unedited_region_by_itself() {
     let pair = update_pair(4.0);
-    let out = run(
-        &pair,
-        "meshmatch",
-        serde_json::json!({"samples": 16384, "vertex_color_samples": 60000, "update": {}}),
-    );
-    common::assert_validator_clean(&out.model, "meshmatch_update_auto.glb");
-    save(&out.model, "meshmatch_update_auto.glb");
-    let report = &out.report.method_report;
-    let copied = report["copied_samples"].as_u64().unwrap() as f64;
-    let total = report["target_samples"].as_u64().unwrap() as f64;
+    let (out, copied) = run_update(&pair, serde_json::json!({}), "meshmatch_update_auto.glb");
     // On the source: the left cap and the cylinder up to x = 4, (4 + 0.25π)/(6 + 0.5π) = 0.63.
     assert!(
-        (0.55..0.68).contains(&(copied / total)),
-        "copied {copied} of {total} synthesis vertices"
+        (0.55..0.68).contains(&copied),
+        "copied {copied:.3} of the synthesis vertices"
     );
     let points = colored_points(&out.model);
-    let (err, n) = copy_error(&points, 0.05, 3.9);
-    eprintln!("copied part: largest grey error {err:.4} over {n} points");
-    assert!(n > 2000, "only {n} output points in the copied part");
-    assert!(
-        err < 0.02,
-        "copied part differs from the source by {err:.3}"
-    );
+    assert_copied_exactly(&points, 3.9, 2000);
     let period = spectral_period(&points, 4.1, 6.0);
     let stats = statistics(&pair, &out.model, 4.1);
     eprintln!(
