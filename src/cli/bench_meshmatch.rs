@@ -277,5 +277,5 @@ pub fn run(assets: &Path, runs: usize) -> Result<(), String> {
     if let Some(p) = peak {
         println!("peak resident memory of the process: {p:.0} MiB");
     }
-    super::bench_meshmatch_pairs::run(assets, runs)
+    super::bench_meshmatch_pairs::run(assets, source, runs)
 }
