@@ -292,27 +292,10 @@ pub fn statistics_of_samples(source: &[[f32; 3]], output: &[[f32; 3]]) -> ColorS
 /// Mean stripe period along the top line (y > 0.45, |z| < 0.12) of the x range [a, b], from the
 /// number of crossings of the mean grey level in 0.06-wide bins (the target has rings every 0.05).
 pub fn measured_period(points: &[([f32; 3], [f32; 3])], a: f32, b: f32) -> f32 {
-    let bins = ((b - a) / 0.06).round() as usize;
-    let mut sum = vec![0.0f32; bins];
-    let mut count = vec![0u32; bins];
-    for (p, c) in points {
-        if p[1] > 0.45 && p[2].abs() < 0.12 && p[0] >= a && p[0] < b {
-            let i = (((p[0] - a) / (b - a)) * bins as f32) as usize;
-            sum[i.min(bins - 1)] += (c[0] + c[1] + c[2]) / 3.0;
-            count[i.min(bins - 1)] += 1;
-        }
-    }
-    let signal: Vec<f32> = sum
-        .iter()
-        .zip(&count)
-        .filter(|(_, n)| **n > 0)
-        .map(|(s, n)| s / *n as f32)
+    let signal: Vec<f32> = top_line_profile(points, a, b, 0.06)
+        .into_iter()
+        .map(|(_, v)| v as f32)
         .collect();
-    assert!(
-        signal.len() > bins / 2,
-        "only {} of {bins} bins sampled",
-        signal.len()
-    );
     let mean = signal.iter().sum::<f32>() / signal.len() as f32;
     // Crossings with a little hysteresis.
     let mut crossings = 0;
@@ -328,6 +311,40 @@ pub fn measured_period(points: &[([f32; 3], [f32; 3])], a: f32, b: f32) -> f32 {
     }
     assert!(crossings >= 2, "no stripes in [{a}, {b}]: {signal:?}");
     2.0 * (b - a) / crossings as f32
+}
+
+/// The mean grey of the output points on the capsule's top line (y > 0.45, |z| < 0.12) in bins
+/// of about `bin_width` over x in [a, b): (bin centre, grey) for every bin with a point; more
+/// than half the bins must have one.
+fn top_line_profile(
+    points: &[([f32; 3], [f32; 3])],
+    a: f32,
+    b: f32,
+    bin_width: f32,
+) -> Vec<(f64, f64)> {
+    let bins = ((b - a) / bin_width).round() as usize;
+    let mut sum = vec![0.0f64; bins];
+    let mut count = vec![0u32; bins];
+    for (p, c) in points {
+        if p[1] > 0.45 && p[2].abs() < 0.12 && p[0] >= a && p[0] < b {
+            let i = ((((p[0] - a) / (b - a)) * bins as f32) as usize).min(bins - 1);
+            sum[i] += ((c[0] + c[1] + c[2]) / 3.0) as f64;
+            count[i] += 1;
+        }
+    }
+    let samples: Vec<(f64, f64)> = (0..bins)
+        .filter(|&i| count[i] > 0)
+        .map(|i| {
+            let x = a as f64 + (b - a) as f64 * (i as f64 + 0.5) / bins as f64;
+            (x, sum[i] / count[i] as f64)
+        })
+        .collect();
+    assert!(
+        samples.len() > bins / 2,
+        "only {} of {bins} bins sampled",
+        samples.len()
+    );
+    samples
 }
 
 /// `from..=to` in steps of about `step` (the rings of a capsule's cylinder).
@@ -425,28 +442,7 @@ pub fn update_copy_error(points: &[([f32; 3], [f32; 3])], a: f32, b: f32) -> (f3
 /// ([`measured_period`]) on short ranges, where one crossing more or less moves that count's
 /// period by 15-25%.
 pub fn spectral_period(points: &[([f32; 3], [f32; 3])], a: f32, b: f32) -> f32 {
-    let bins = ((b - a) / 0.04).round() as usize;
-    let mut sum = vec![0.0f64; bins];
-    let mut count = vec![0u32; bins];
-    for (p, c) in points {
-        if p[1] > 0.45 && p[2].abs() < 0.12 && p[0] >= a && p[0] < b {
-            let i = ((((p[0] - a) / (b - a)) * bins as f32) as usize).min(bins - 1);
-            sum[i] += ((c[0] + c[1] + c[2]) / 3.0) as f64;
-            count[i] += 1;
-        }
-    }
-    let samples: Vec<(f64, f64)> = (0..bins)
-        .filter(|&i| count[i] > 0)
-        .map(|i| {
-            let x = a as f64 + (b - a) as f64 * (i as f64 + 0.5) / bins as f64;
-            (x, sum[i] / count[i] as f64)
-        })
-        .collect();
-    assert!(
-        samples.len() > bins / 2,
-        "only {} of {bins} bins sampled",
-        samples.len()
-    );
+    let samples = top_line_profile(points, a, b, 0.04);
     let mean = samples.iter().map(|s| s.1).sum::<f64>() / samples.len() as f64;
     let span = (b - a) as f64;
     let windowed: Vec<(f64, f64)> = samples
