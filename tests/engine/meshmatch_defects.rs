@@ -5,7 +5,7 @@
 
 use retex::engine::control::Control;
 use retex::engine::mesh::Surface;
-use retex::engine::methods::meshmatch::em::{synthesize, MatchInput};
+use retex::engine::methods::meshmatch::em::{synthesize, MatchInput, Mode};
 use retex::engine::methods::meshmatch::sampling::synthesis_mesh;
 use retex::engine::methods::meshmatch::{MeshMatchParams, ShapeFeatures};
 
@@ -86,8 +86,7 @@ fn by_example_matches_keep_their_whole_fan_in_the_painted_region() {
                 source_colors: &colors,
                 target: &surface,
                 correspondences: &[],
-                painted: Some(&painted),
-                copied: None,
+                mode: Mode::ByExample(&painted),
             },
             &by_example_params(5.0),
             seed,
@@ -135,8 +134,7 @@ fn by_example_with_a_region_narrower_than_a_fan_is_an_error() {
             source_colors: &colors,
             target: &surface,
             correspondences: &[],
-            painted: Some(&painted),
-            copied: None,
+            mode: Mode::ByExample(&painted),
         },
         &by_example_params(5.0),
         1,

@@ -93,10 +93,39 @@ pub struct MatchInput<'a> {
     pub target: &'a Surface,
     /// Correspondences.
     pub correspondences: &'a [PointPair],
-    /// By-example mode: the painted vertices of the (shared) mesh.
-    pub painted: Option<&'a [bool]>,
-    /// Texture-update mode: the target vertices copied from the source, and their colours.
-    pub copied: Option<Copied<'a>>,
+    /// Which target vertices keep a given colour: none (a plain transfer), the painted ones
+    /// (by-example) or the copied ones (texture update).
+    pub mode: Mode<'a>,
+}
+
+/// What a synthesis keeps fixed (§5.3).
+#[derive(Clone, Copy)]
+pub enum Mode<'a> {
+    /// A plain transfer: every target vertex is synthesized.
+    Transfer,
+    /// By-example: source and target are one mesh; these vertices are painted and keep their
+    /// colour, the rest is synthesized from them.
+    ByExample(&'a [bool]),
+    /// Texture update: these target vertices were copied from the source and keep that colour.
+    Update(Copied<'a>),
+}
+
+impl<'a> Mode<'a> {
+    /// The painted vertices in by-example mode.
+    pub fn painted(&self) -> Option<&'a [bool]> {
+        match *self {
+            Mode::ByExample(p) => Some(p),
+            _ => None,
+        }
+    }
+
+    /// The copied vertices in texture-update mode.
+    pub fn copied(&self) -> Option<Copied<'a>> {
+        match *self {
+            Mode::Update(c) => Some(c),
+            _ => None,
+        }
+    }
 }
 
 /// Texture-update mode (§5.3, Figure 10): target vertices whose colour was copied from the source
@@ -221,7 +250,7 @@ fn shape_features(
     let mut affinity = None;
     if use_auto {
         let a = automatic_features(src.surface(fs), &params.hks, control)?;
-        let b = if input.painted.is_some() {
+        let b = if input.mode.painted().is_some() {
             a.clone()
         } else {
             automatic_features(tgt.surface(ft), &params.hks, control)?
@@ -374,7 +403,7 @@ fn build_levels(
 ) -> Result<(MeshLevels, Option<MeshLevels>), MeshMatchError> {
     let up = params.hks.up;
     let src_levels = MeshLevels::build(input.source, params.min_vertices, up, control)?;
-    let tgt_owned = if input.painted.is_some() {
+    let tgt_owned = if input.mode.painted().is_some() {
         None
     } else {
         Some(MeshLevels::build(
@@ -440,10 +469,10 @@ impl ExampleMasks {
         tgt_levels: &MeshLevels,
         color_std: f32,
     ) -> Result<Self, MeshMatchError> {
-        let (mask, name) = match (input.painted, input.copied) {
-            (Some(p), _) => (Some(p), "example"),
-            (None, Some(c)) => (Some(c.mask), "update"),
-            (None, None) => (None, "example"),
+        let (mask, name) = match input.mode {
+            Mode::ByExample(p) => (Some(p), "example"),
+            Mode::Update(c) => (Some(c.mask), "update"),
+            Mode::Transfer => (None, "example"),
         };
         let painted = mask.map(|p| tgt_levels.restrict_mask_all(p));
         if let Some(p) = &painted {
@@ -454,7 +483,7 @@ impl ExampleMasks {
                 });
             }
         }
-        let copied_colors = input.copied.filter(|_| input.painted.is_none()).map(|c| {
+        let copied_colors = input.mode.copied().map(|c| {
             let flat: Vec<f32> = c.colors.iter().flatten().map(|x| x / color_std).collect();
             tgt_levels
                 .spread(0, 3, flat)

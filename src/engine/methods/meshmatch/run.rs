@@ -26,7 +26,7 @@ use crate::engine::methods::color_output::{write_color_field, ColorField, ColorO
 use crate::engine::methods::correspondence::resolve_on_surfaces;
 use crate::engine::spatial::Bvh;
 
-use super::em::{synthesize, Copied, MatchInput, MatchReport, PointPair};
+use super::em::{synthesize, Copied, MatchInput, MatchReport, Mode, PointPair};
 use super::example::painted_vertices;
 use super::nnf_file::NnfFile;
 use super::sampling::{input_color, synthesis_colors, synthesis_mesh};
@@ -244,11 +244,14 @@ pub fn run(
             source_colors: &source_colors,
             target: &tgt_mesh.surface,
             correspondences: &pairs,
-            painted: painted.as_deref(),
-            copied: copied.as_ref().map(|c| Copied {
-                mask: &c.mask,
-                colors: &c.colors,
-            }),
+            mode: match (&painted, &copied) {
+                (Some(p), _) => Mode::ByExample(p),
+                (None, Some(c)) => Mode::Update(Copied {
+                    mask: &c.mask,
+                    colors: &c.colors,
+                }),
+                (None, None) => Mode::Transfer,
+            },
         },
         params,
         constraints.seed,
