@@ -457,10 +457,17 @@ impl Normalization {
 /// (§5.3; the source vertices matches may use are found per level from the fan charts,
 /// [`fan_inside`]), copied ones in texture-update mode (with their normalized colours, averaged
 /// over each coarse vertex's children, all of which are copied).
-struct ExampleMasks {
-    painted: Option<Vec<Vec<bool>>>,
-    /// Texture update: the copied colours per level, normalized like the source's.
-    copied_colors: Option<Vec<Vec<[f32; 3]>>>,
+enum ExampleMasks {
+    /// A plain transfer: nothing is kept.
+    Transfer,
+    /// By-example: the painted vertices per level.
+    ByExample { painted: Vec<Vec<bool>> },
+    /// Texture update: the copied vertices per level and their colours, normalized like the
+    /// source's.
+    Update {
+        copied: Vec<Vec<bool>>,
+        colors: Vec<Vec<[f32; 3]>>,
+    },
 }
 
 impl ExampleMasks {
@@ -469,37 +476,58 @@ impl ExampleMasks {
         tgt_levels: &MeshLevels,
         color_std: f32,
     ) -> Result<Self, MeshMatchError> {
-        let (mask, name) = match input.mode {
-            Mode::ByExample(p) => (Some(p), "example"),
-            Mode::Update(c) => (Some(c.mask), "update"),
-            Mode::Transfer => (None, "example"),
-        };
-        let painted = mask.map(|p| tgt_levels.restrict_mask_all(p));
-        if let Some(p) = &painted {
-            if !p[0].iter().any(|&x| x) {
-                return Err(MeshMatchError::Param {
+        let restrict = |mask: &[bool], name: &'static str| {
+            let levels = tgt_levels.restrict_mask_all(mask);
+            if levels[0].iter().any(|&x| x) {
+                Ok(levels)
+            } else {
+                Err(MeshMatchError::Param {
                     name,
                     message: format!("the {name} mask selects no vertex"),
-                });
+                })
             }
-        }
-        let copied_colors = input.mode.copied().map(|c| {
-            let flat: Vec<f32> = c.colors.iter().flatten().map(|x| x / color_std).collect();
-            tgt_levels
-                .spread(0, 3, flat)
-                .into_iter()
-                .map(|l| l.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
-                .collect()
-        });
-        Ok(ExampleMasks {
-            painted,
-            copied_colors,
+        };
+        Ok(match input.mode {
+            Mode::Transfer => ExampleMasks::Transfer,
+            Mode::ByExample(p) => ExampleMasks::ByExample {
+                painted: restrict(p, "example")?,
+            },
+            Mode::Update(c) => {
+                let copied = restrict(c.mask, "update")?;
+                let flat: Vec<f32> = c.colors.iter().flatten().map(|x| x / color_std).collect();
+                let colors = tgt_levels
+                    .spread(0, 3, flat)
+                    .into_iter()
+                    .map(|l| l.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+                    .collect();
+                ExampleMasks::Update { copied, colors }
+            }
         })
     }
 
-    /// By-example mode (source and target are one mesh), as opposed to texture update.
-    fn by_example(&self) -> bool {
-        self.painted.is_some() && self.copied_colors.is_none()
+    /// The target vertices of `level` that keep their colour (painted or copied).
+    fn fixed(&self, level: usize) -> Option<&[bool]> {
+        match self {
+            ExampleMasks::Transfer => None,
+            ExampleMasks::ByExample { painted } => Some(&painted[level]),
+            ExampleMasks::Update { copied, .. } => Some(&copied[level]),
+        }
+    }
+
+    /// Texture update: the copied colours of `level`.
+    fn fixed_colors(&self, level: usize) -> Option<&[[f32; 3]]> {
+        match self {
+            ExampleMasks::Update { colors, .. } => Some(&colors[level]),
+            _ => None,
+        }
+    }
+
+    /// By-example mode: the painted vertices of `level`.
+    fn painted(&self, level: usize) -> Option<&[bool]> {
+        match self {
+            ExampleMasks::ByExample { painted } => Some(&painted[level]),
+            _ => None,
+        }
     }
 }
 
@@ -775,13 +803,9 @@ impl<'a> CoarseToFine<'a> {
             src_shape,
             tgt_shape,
             allowed,
-            fixed: self.masks.painted.as_ref().map(|p| p[level].as_slice()),
-            fixed_colors: self
-                .masks
-                .copied_colors
-                .as_ref()
-                .map(|c| c[level].as_slice()),
-            fixed_matches: self.masks.by_example(),
+            fixed: self.masks.fixed(level),
+            fixed_colors: self.masks.fixed_colors(level),
+            fixed_matches: self.masks.painted(level).is_some(),
             warning,
         })
     }
@@ -795,20 +819,14 @@ impl<'a> CoarseToFine<'a> {
         level: usize,
         charts: &ExpMap,
     ) -> Result<(Option<Vec<bool>>, Option<String>), MeshMatchError> {
-        let Some(painted) = self
-            .masks
-            .painted
-            .as_ref()
-            .filter(|_| self.masks.by_example())
-            .map(|p| &p[level])
-        else {
+        let Some(painted) = self.masks.painted(level) else {
             return Ok((None, None));
         };
         if level > 0 {
             // Coarser levels only seed the finer ones: restricting them to whole-fan vertices
             // left so few usable sources that the synthesized region collapsed onto one colour
             // (a striped capsule's unpainted half came out 100% dark).
-            return Ok((Some(painted.clone()), None));
+            return Ok((Some(painted.to_vec()), None));
         }
         let inside = fan_inside(painted, charts);
         if inside.iter().any(|&x| x) {
@@ -827,7 +845,7 @@ impl<'a> CoarseToFine<'a> {
             "by-example: on level {level} ({} vertices) no fan fits inside the painted region; matches there may use any painted vertex",
             painted.len()
         );
-        Ok((Some(painted.clone()), Some(warning)))
+        Ok((Some(painted.to_vec()), Some(warning)))
     }
 
     /// The field to start `lv` from: random on the coarsest level, else upsampled from the

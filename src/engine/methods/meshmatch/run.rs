@@ -30,7 +30,7 @@ use super::em::{synthesize, Copied, MatchInput, MatchReport, Mode, PointPair};
 use super::example::painted_vertices;
 use super::nnf_file::NnfFile;
 use super::sampling::{input_color, synthesis_colors, synthesis_mesh};
-use super::update::{copied_region, CopySource};
+use super::update::{copied_region, CopiedRegion, CopySource};
 use super::{MeshMatchError, MeshMatchParams, ScaleMode};
 use crate::engine::texture::sample::MaterialSampler;
 
@@ -66,6 +66,29 @@ struct SynthesizedField<'a> {
     bvh: Bvh,
     colors: Vec<[f32; 3]>,
     original: Option<Original<'a>>,
+}
+
+/// What a synthesis keeps fixed, owned ([`Mode`] borrows it).
+enum Kept {
+    /// A plain transfer.
+    Transfer,
+    /// By-example: the painted synthesis vertices.
+    ByExample(Vec<bool>),
+    /// Texture update: the copied synthesis vertices and their colours.
+    Update(CopiedRegion),
+}
+
+impl Kept {
+    fn mode(&self) -> Mode<'_> {
+        match self {
+            Kept::Transfer => Mode::Transfer,
+            Kept::ByExample(painted) => Mode::ByExample(painted),
+            Kept::Update(region) => Mode::Update(Copied {
+                mask: &region.mask,
+                colors: &region.colors,
+            }),
+        }
+    }
 }
 
 /// The painted original of by-example mode (the target), or the source of texture-update mode.
@@ -203,33 +226,27 @@ pub fn run(
         synthesis_mesh(&src_surface, source_samples, control)?
     };
     let source_colors = synthesis_colors(src_asset, &src_surface, &src_mesh);
-    let painted = match &params.example {
-        Some(mask) => Some(painted_vertices(mask, target, &tgt_surface, &tgt_mesh)?),
-        None => None,
-    };
-    // The full-resolution original read inside the painted (copied) region: the target's
-    // surface in by-example mode, the source's in texture-update mode.
-    let original_bvh = match (&painted, &params.update) {
-        (Some(_), _) => Some(tgt_bvh()),
-        (None, Some(_)) => Some(src_bvh()),
-        (None, None) => None,
-    };
-    let copied = match (&params.update, original_bvh) {
-        (Some(update), Some(bvh)) => {
+    // What the synthesis keeps: the painted vertices (by-example, read back from the target's
+    // full-resolution surface) or the copied ones (texture update, read from the source's).
+    let kept = match (&params.example, &params.update) {
+        (Some(mask), _) => {
+            Kept::ByExample(painted_vertices(mask, target, &tgt_surface, &tgt_mesh)?)
+        }
+        (None, Some(update)) => {
             let region = copied_region(
                 update,
                 &CopySource {
                     asset: src_asset,
                     surface: &src_surface,
-                    bvh,
+                    bvh: src_bvh(),
                 },
                 (target, &tgt_surface),
                 &tgt_mesh,
             )?;
             warnings.extend(region.warnings.iter().cloned());
-            Some(region)
+            Kept::Update(region)
         }
-        _ => None,
+        (None, None) => Kept::Transfer,
     };
     let mut scaled_source = src_mesh.surface.clone();
     for p in scaled_source.positions.iter_mut() {
@@ -244,14 +261,7 @@ pub fn run(
             source_colors: &source_colors,
             target: &tgt_mesh.surface,
             correspondences: &pairs,
-            mode: match (&painted, &copied) {
-                (Some(p), _) => Mode::ByExample(p),
-                (None, Some(c)) => Mode::Update(Copied {
-                    mask: &c.mask,
-                    colors: &c.colors,
-                }),
-                (None, None) => Mode::Transfer,
-            },
+            mode: kept.mode(),
         },
         params,
         constraints.seed,
@@ -270,26 +280,28 @@ pub fn run(
         }
         .encode()
     });
-    let painted_count = painted.as_ref().map(|p| p.iter().filter(|x| **x).count());
-    let copied_count = copied
-        .as_ref()
-        .map(|c| c.mask.iter().filter(|x| **x).count());
-    let original = match (painted, copied, original_bvh) {
-        (Some(painted), _, Some(bvh)) => Some(Original {
+    let count = |mask: &[bool]| mask.iter().filter(|x| **x).count();
+    let (painted_count, copied_count) = match &kept {
+        Kept::Transfer => (None, None),
+        Kept::ByExample(painted) => (Some(count(painted)), None),
+        Kept::Update(region) => (None, Some(count(&region.mask))),
+    };
+    let original = match kept {
+        Kept::Transfer => None,
+        Kept::ByExample(painted) => Some(Original {
             asset: target,
             input: &tgt_surface,
-            input_bvh: bvh,
+            input_bvh: tgt_bvh(),
             painted,
             sampler: MaterialSampler::new(target),
         }),
-        (None, Some(c), Some(bvh)) => Some(Original {
+        Kept::Update(region) => Some(Original {
             asset: src_asset,
             input: &src_surface,
-            input_bvh: bvh,
-            painted: c.mask,
+            input_bvh: src_bvh(),
+            painted: region.mask,
             sampler: MaterialSampler::new(src_asset),
         }),
-        _ => None,
     };
     let field = SynthesizedField {
         bvh: Bvh::build(&tgt_mesh.surface.positions, &tgt_mesh.surface.faces),
