@@ -127,7 +127,8 @@ impl Fft2 {
     /// (circular), handed to `row_out(y, row)` one output row at a time (rows in order, each of
     /// `width` values, already divided by `width · height`). Each `g_c` is zero outside a box of
     /// `size = [bw, bh]` cells (`bw ≤ width`, `bh ≤ height`) whose first cell is grid cell
-    /// `origin` (the box wraps around the grid): `boxes[c]` holds it row-major (`bw · bh`).
+    /// `origin` (the box wraps around the grid): `boxes` holds the box row-major (`bw · bh`), the
+    /// `C` channels of a cell together (the splat writes them with one access).
     /// `spectra[c]` is the [`forward`](Self::forward) spectrum of `t_c`.
     ///
     /// The same sums as `inverse(Σ_c factors[c] · conj(forward(g_c)) · spectra[c])`, without
@@ -135,33 +136,36 @@ impl Fft2 {
     /// column is transformed forward, combined and transformed back while it is in cache (a
     /// profile of a 512² pattern put most of a fit's time in the copies of full-size images and
     /// spectra, not in the FFT kernels).
-    pub fn correlate_box(
+    pub fn correlate_box<const C: usize>(
         &self,
         origin: [usize; 2],
         size: [usize; 2],
-        boxes: &[Vec<f32>],
-        factors: &[f32],
+        boxes: &[[f32; C]],
+        factors: &[f32; C],
         spectra: &[Vec<Complex32>],
         mut row_out: impl FnMut(usize, &[f32]),
     ) {
         let (w, h, cols) = (self.width, self.height, self.columns());
         let [bw, bh] = size;
         debug_assert!(bw <= w && bh <= h && origin[0] < w && origin[1] < h);
-        debug_assert!(boxes.len() == factors.len() && boxes.len() == spectra.len());
+        debug_assert!(boxes.len() == bw * bh && spectra.len() == C);
         let zero = Complex32::new(0.0, 0.0);
         // Row spectra of the box's rows, per channel row-major (`bh × cols`).
         let mut row = vec![0.0f32; w];
         let mut scratch = vec![zero; self.rows_forward.get_scratch_len()];
-        let row_spectra: Vec<Vec<Complex32>> = boxes
-            .iter()
-            .map(|b| {
-                debug_assert_eq!(b.len(), bw * bh);
+        let row_spectra: Vec<Vec<Complex32>> = (0..C)
+            .map(|c| {
                 let mut out = vec![zero; bh * cols];
+                // The box's row in the grid's row: one run, or two where it wraps.
+                let first = bw.min(w - origin[0]);
                 for r in 0..bh {
                     row.fill(0.0);
-                    for (i, &v) in b[r * bw..(r + 1) * bw].iter().enumerate() {
-                        let x = origin[0] + i;
-                        row[if x < w { x } else { x - w }] = v;
+                    let cells = &boxes[r * bw..(r + 1) * bw];
+                    for (x, v) in row[origin[0]..origin[0] + first].iter_mut().zip(cells) {
+                        *x = v[c];
+                    }
+                    for (x, v) in row.iter_mut().zip(&cells[first..]) {
+                        *x = v[c];
                     }
                     let _ = self.rows_forward.process_with_scratch(
                         &mut row,
@@ -350,12 +354,8 @@ mod tests {
                 .collect();
             let spectra: Vec<Vec<Complex32>> = t.iter().map(|t| fft.forward(t)).collect();
             let [bw, bh] = size;
-            let boxes: Vec<Vec<f32>> = (0..2)
-                .map(|c| {
-                    (0..bw * bh)
-                        .map(|i| ((i * (3 + c) % 5) as f32) - 2.0)
-                        .collect()
-                })
+            let boxes: Vec<[f32; 2]> = (0..bw * bh)
+                .map(|i| [0, 1].map(|c| ((i * (3 + c) % 5) as f32) - 2.0))
                 .collect();
             let factors = [-2.0, 1.0];
             let mut got = vec![f32::NAN; w * h];
@@ -370,7 +370,7 @@ mod tests {
                             for i in 0..bw {
                                 let (x, y) = ((origin[0] + i) % w, (origin[1] + r) % h);
                                 let (sx, sy) = ((x + dx) % w, (y + dy) % h);
-                                direct += factors[c] * boxes[c][r * bw + i] * t[c][sy * w + sx];
+                                direct += factors[c] * boxes[r * bw + i][c] * t[c][sy * w + sx];
                             }
                         }
                     }

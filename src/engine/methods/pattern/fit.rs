@@ -35,8 +35,16 @@
 //! coarse minimum, and any other whose coarse minimum lies below `best + COARSE_MARGIN · (median
 //! − best)` ([`COARSE_MARGIN`] = 0.25: with the 3 alone a planted placement on a 512² wood
 //! texture with texel-scale grain, trial 3 of `planted_placements_are_recovered_on_shared_textures`,
-//! was missed), are then searched at full resolution exactly as above, and the best of those is
-//! the fit (if none of them has a valid full-resolution offset, all orientations are). Per fit on
+//! was missed), are then searched at full resolution, and the best of those is the fit (if none
+//! of them has a valid full-resolution offset, all orientations are). The full-resolution search
+//! of a refined orientation is restricted to windows of `±2s` px around `s ·` the translations
+//! of its [`COARSE_MINIMA`] (4) lowest coarse local minima (kept at least [`MINIMA_SEPARATION`]
+//! coarse px apart while the coarse image is scanned): the same sums as the full search at those
+//! offsets, by small FFTs (`fit_window.rs`); an orientation whose best windowed value lies on its
+//! window's border, or whose windows would cost more than the full search (a large mask), is
+//! searched over all offsets as before. One window around the single coarse minimum was not
+//! enough: on a regular weave (the toy-car fabric, 512²) the 2× image has several near-equal
+//! minima, and a planted placement was found 163 px off. Per fit on
 //! a 256² pattern that is 19 FFT passes of 64² plus 3 of 256² instead of 19 of 256²: the
 //! skull benchmark went from 9.8 s to 2.7 s with the same fits and seam errors within 0.001 on
 //! two smooth 256² patterns; on a pattern with 4-px detail the seam error rose by about 3% (README).
@@ -46,14 +54,18 @@
 //! in cache ([`super::fft2::Fft2::correlate_box`]); the error image is filled, and its minimum
 //! found, one row at a time. Same sums as four full-size forward FFTs and one inverse (the
 //! output files of the 512² fabric onto Spot were identical); CPU per fit on that case fell from
-//! about 89 to 46 ms (load average 3-4, both measured).
+//! about 89 to 46 ms (load average 3-4, both measured). The coarse ranking keeps no error image
+//! (only its few lowest local minima), the splat writes the four channels of a cell together,
+//! and its floors are taken without a libm call (a profile put 10-15% of the fit in the splat).
 //!
 //! **Normalisation.** `Fit::error` is `E / Σ J` (the mean squared colour-space error per mask
 //! pixel), so thresholds do not depend on the mask's size.
 
 use rayon::prelude::*;
 
+use super::fit_window;
 use super::mask::Mask;
+use super::orient::{orient, splat, FACTORS};
 use super::texture::PatternTexture;
 use crate::engine::rng;
 
@@ -63,6 +75,13 @@ pub const REFINED_ORIENTATIONS: usize = 3;
 /// ... plus every orientation whose coarse minimum is below `best + COARSE_MARGIN · (median −
 /// best)` (module doc).
 pub const COARSE_MARGIN: f32 = 0.25;
+
+/// Local minima of each refined orientation's coarse error image whose neighbourhoods are
+/// searched at full resolution (module doc).
+pub const COARSE_MINIMA: usize = 4;
+
+/// Two coarse minima closer than this (reduced pixels, on each axis) are one.
+pub const MINIMA_SEPARATION: i64 = 3;
 
 /// A rigid map of frame pixels into pattern pixels: `pattern_px = R(rotation) · frame_px + t`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -154,21 +173,29 @@ pub fn best_fit_with_rotation(
     }
     let n = texture.orientations();
     let alpha = |k: usize| std::f32::consts::TAU * k as f32 / n as f32 + phi;
-    let all: Vec<usize> = (0..n).collect();
-    let candidates = match texture.coarse() {
-        Some((coarse, s)) => coarse_candidates(coarse, s, mask, patch_bbox_px, &alpha),
-        None => all.clone(),
+    let all: Vec<(usize, Vec<[f32; 2]>)> = (0..n).map(|k| (k, Vec::new())).collect();
+    let (candidates, s) = match texture.coarse() {
+        Some((coarse, s)) => (coarse_candidates(coarse, s, mask, patch_bbox_px, &alpha), s),
+        None => (all.clone(), 1),
     };
-    let fine = |ks: &[usize]| -> Option<Fit> {
+    let radius = fit_window::WINDOW_RADIUS_PER_FACTOR * s as i64;
+    let refine = |k: usize, coarse: &[[f32; 2]]| -> Option<(f32, Placement)> {
+        let windowed = orient(texture, &cells, patch_bbox_px, alpha(k)).and_then(|o| {
+            let centres: Vec<[i64; 2]> = coarse
+                .iter()
+                .map(|t| [0, 1].map(|a| (t[a] * s as f32).round() as i64 + o.shift[a]))
+                .collect();
+            fit_window::windows_minimum(texture, &cells, &o, &centres, radius)
+        });
+        windowed.or_else(|| {
+            let (image, argmin) = error_image_of(texture, &cells, patch_bbox_px, alpha(k))?;
+            minimum(&image, argmin?, texture.toroidal())
+        })
+    };
+    let fine = |ks: &[(usize, Vec<[f32; 2]>)]| -> Option<Fit> {
         let results: Vec<(usize, Option<(f32, Placement)>)> = ks
             .par_iter()
-            .map(|&k| {
-                let image = error_image_of(texture, &cells, patch_bbox_px, alpha(k));
-                (
-                    k,
-                    image.and_then(|(image, argmin)| minimum(&image, argmin?, texture.toroidal())),
-                )
-            })
+            .map(|(k, coarse)| (*k, refine(*k, coarse)))
             .collect();
         let mut best: Option<Fit> = None;
         for (k, result) in results {
@@ -198,42 +225,44 @@ fn coarse_candidates(
     mask: &Mask,
     patch_bbox_px: [[f32; 2]; 2],
     alpha: &(dyn Fn(usize) -> f32 + Sync),
-) -> Vec<usize> {
+) -> Vec<(usize, Vec<[f32; 2]>)> {
     let n = coarse.orientations();
     let scored = coarse_scores(coarse, s, mask, patch_bbox_px, alpha);
     if scored.is_empty() {
-        return (0..n).collect();
+        return (0..n).map(|k| (k, Vec::new())).collect();
     }
     let best = scored[0].0;
     let median = scored[scored.len() / 2].0;
     let cut = best + COARSE_MARGIN * (median - best);
     scored
-        .iter()
+        .into_iter()
         .enumerate()
-        .filter(|(i, (v, _))| *i < REFINED_ORIENTATIONS || *v <= cut)
-        .map(|(_, (_, k))| *k)
+        .filter(|(i, (v, _, _))| *i < REFINED_ORIENTATIONS || *v <= cut)
+        .map(|(_, (_, k, t))| (k, t))
         .collect()
 }
 
-/// `(coarse minimum, k)` per orientation with a valid coarse offset, lowest first, for the
-/// pattern's reduced copy `coarse` (factor `s`) and orientations `alpha(k)`.
+/// `(coarse minimum, k, the translations of its [`COARSE_MINIMA`] best local minima in reduced
+/// pixels)` per orientation with a valid coarse offset, lowest first, for the pattern's reduced
+/// copy `coarse` (factor `s`) and orientations `alpha(k)`.
 fn coarse_scores(
     coarse: &PatternTexture,
     s: usize,
     mask: &Mask,
     patch_bbox_px: [[f32; 2]; 2],
     alpha: &(dyn Fn(usize) -> f32 + Sync),
-) -> Vec<(f32, usize)> {
+) -> Vec<(f32, usize, Vec<[f32; 2]>)> {
     let n = coarse.orientations();
     let cells = reduced_cells(mask, s);
     let inv = 1.0 / s as f32;
     let bbox = patch_bbox_px.map(|p| p.map(|v| v * inv));
-    let mut scored: Vec<(f32, usize)> = (0..n)
+    let mut scored: Vec<(f32, usize, Vec<[f32; 2]>)> = (0..n)
         .into_par_iter()
         .filter_map(|k| {
-            let (image, argmin) = error_image_of(coarse, &cells, bbox, alpha(k))?;
-            let best = image.values[argmin?];
-            best.is_finite().then_some((best, k))
+            let minima = smallest_errors(coarse, &cells, bbox, alpha(k));
+            let best = minima.first()?.0;
+            let t = minima.iter().map(|m| m.1).collect();
+            best.is_finite().then_some((best, k, t))
         })
         .collect();
     scored.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
@@ -251,7 +280,10 @@ pub fn coarse_ranking(
     let n = texture.orientations();
     let alpha = |k: usize| std::f32::consts::TAU * k as f32 / n as f32 + phi;
     match texture.coarse() {
-        Some((coarse, s)) => coarse_scores(coarse, s, mask, patch_bbox_px, &alpha),
+        Some((coarse, s)) => coarse_scores(coarse, s, mask, patch_bbox_px, &alpha)
+            .into_iter()
+            .map(|(v, k, _)| (v, k))
+            .collect(),
         None => Vec::new(),
     }
 }
@@ -320,13 +352,13 @@ pub fn placement_error(
 }
 
 /// A mask cell with positive support.
-struct Cell {
-    frame: [f32; 2],
-    colour: [f32; 3],
-    weight: f32,
+pub(super) struct Cell {
+    pub frame: [f32; 2],
+    pub colour: [f32; 3],
+    pub weight: f32,
 }
 
-fn support_cells(mask: &Mask) -> Vec<Cell> {
+pub(super) fn support_cells(mask: &Mask) -> Vec<Cell> {
     support_cells_indexed(mask).map(|(_, _, c)| c).collect()
 }
 
@@ -368,192 +400,133 @@ fn mask_hash(mask: &Mask) -> u64 {
     h
 }
 
-/// The valid integer range `[lo, hi]` of grid offsets `d` on one axis, or `None`.
-type Range = Option<(i64, i64)>;
+/// The [`COARSE_MINIMA`] smallest local minima of `E / Σ J` over the valid integer offsets at
+/// one rotation, at least [`MINIMA_SEPARATION`] px apart on each axis (a streaming suppression:
+/// a value enters when it beats the worst kept and every kept one near it), lowest first, with
+/// their integer translations. The first is the image's smallest value. The image itself is not
+/// kept (the coarse ranking needs no more).
+fn smallest_errors(
+    texture: &PatternTexture,
+    cells: &[Cell],
+    patch_bbox_px: [[f32; 2]; 2],
+    alpha: f32,
+) -> Vec<(f32, [f32; 2])> {
+    let Some(o) = orient(texture, cells, patch_bbox_px, alpha) else {
+        return Vec::new();
+    };
+    let n = [texture.width() as i64, texture.height() as i64];
+    let near = |a: [i64; 2], b: [i64; 2]| {
+        (0..2).all(|i| {
+            let d = (a[i] - b[i]).abs();
+            let d = if texture.toroidal() {
+                d.min(n[i] - d)
+            } else {
+                d
+            };
+            d <= MINIMA_SEPARATION
+        })
+    };
+    let [(xlo, xhi), (ylo, yhi)] = o.ranges;
+    let mut kept: Vec<(f32, [i64; 2])> = Vec::with_capacity(COARSE_MINIMA + 1);
+    let mut worst = f32::INFINITY;
+    let sp = splat(texture, cells, &o.rotated, o.shift);
+    texture.fft().correlate_box(
+        sp.origin,
+        sp.size,
+        &sp.boxes,
+        &FACTORS,
+        texture.spectra(),
+        |dy, correlation| {
+            if dy < ylo as usize || dy > yhi as usize {
+                return;
+            }
+            for (dx, c) in correlation
+                .iter()
+                .enumerate()
+                .take(xhi as usize + 1)
+                .skip(xlo as usize)
+            {
+                let v = o.error(*c);
+                if v >= worst {
+                    continue;
+                }
+                let d = [dx as i64, dy as i64];
+                if kept.iter().any(|(kv, kd)| *kv <= v && near(*kd, d)) {
+                    continue;
+                }
+                kept.retain(|(_, kd)| !near(*kd, d));
+                let at = kept.partition_point(|(kv, _)| *kv <= v);
+                kept.insert(at, (v, d));
+                kept.truncate(COARSE_MINIMA);
+                worst = if kept.len() == COARSE_MINIMA {
+                    kept[COARSE_MINIMA - 1].0
+                } else {
+                    f32::INFINITY
+                };
+            }
+        },
+    );
+    kept.into_iter()
+        .map(|(v, d)| (v, [0, 1].map(|a| (d[a] - o.shift[a]) as f32)))
+        .collect()
+}
 
-fn error_image_of(
+pub(super) fn error_image_of(
     texture: &PatternTexture,
     cells: &[Cell],
     patch_bbox_px: [[f32; 2]; 2],
     alpha: f32,
 ) -> Option<(ErrorImage, Option<usize>)> {
-    if cells.is_empty() {
-        return None;
-    }
+    let o = orient(texture, cells, patch_bbox_px, alpha)?;
+    let [(xlo, xhi), (ylo, yhi)] = o.ranges;
     let size = [texture.width() as usize, texture.height() as usize];
-    let rotated: Vec<[f32; 2]> = cells.iter().map(|c| rotate(alpha, c.frame)).collect();
-    // Grid coordinate of a rotated cell: u = q − 0.5 − shift, with shift making u ≥ 0.
-    let mut shift = [0i64; 2];
-    let mut max_cell = [0i64; 2];
-    for a in 0..2 {
-        let lo = rotated.iter().map(|q| q[a]).fold(f32::INFINITY, f32::min);
-        let hi = rotated
-            .iter()
-            .map(|q| q[a])
-            .fold(f32::NEG_INFINITY, f32::max);
-        shift[a] = (lo - 0.5).floor() as i64;
-        max_cell[a] = (hi - 0.5).floor() as i64 - shift[a] + 1;
-    }
-    let ranges: [Range; 2] = if texture.toroidal() {
-        [Some((0, size[0] as i64 - 1)), Some((0, size[1] as i64 - 1))]
-    } else {
-        let corners = [
-            patch_bbox_px[0],
-            [patch_bbox_px[1][0], patch_bbox_px[0][1]],
-            [patch_bbox_px[0][0], patch_bbox_px[1][1]],
-            patch_bbox_px[1],
-        ]
-        .map(|c| rotate(alpha, c));
-        [0, 1].map(|a| clamped_range(&corners, a, size[a], shift[a], max_cell[a]))
-    };
-    let (xlo, xhi) = ranges[0]?;
-    let (ylo, yhi) = ranges[1]?;
-    let total: f32 = cells.iter().map(|c| c.weight).sum();
-    let sum_i2: f32 = cells
-        .iter()
-        .map(|c| c.weight * c.colour.iter().map(|v| v * v).sum::<f32>())
-        .sum();
     let w = size[0];
     let mut values = vec![f32::INFINITY; size[0] * size[1]];
     let (mut argmin, mut min) = (None, f32::INFINITY);
-    correlate(texture, cells, &rotated, shift, |dy, correlation| {
-        if dy < ylo as usize || dy > yhi as usize {
-            return;
-        }
-        let (lo, hi) = (xlo as usize, xhi as usize);
-        let out = &mut values[dy * w + lo..=dy * w + hi];
-        for (o, c) in out.iter_mut().zip(&correlation[lo..=hi]) {
-            *o = ((sum_i2 + c) / total).max(0.0);
-        }
-        // `max` maps NaN to 0, so the first value equal to the row's minimum is its first
-        // smallest (the order of a plain scan).
-        let row_min = out.iter().copied().fold(f32::INFINITY, f32::min);
-        if row_min < min {
-            let i = out.iter().position(|&v| v == row_min).unwrap_or(0);
-            (argmin, min) = (Some(dy * w + lo + i), row_min);
-        }
-    });
+    let sp = splat(texture, cells, &o.rotated, o.shift);
+    texture.fft().correlate_box(
+        sp.origin,
+        sp.size,
+        &sp.boxes,
+        &FACTORS,
+        texture.spectra(),
+        |dy, correlation| {
+            if dy < ylo as usize || dy > yhi as usize {
+                return;
+            }
+            let (lo, hi) = (xlo as usize, xhi as usize);
+            let out = &mut values[dy * w + lo..=dy * w + hi];
+            for (o_value, c) in out.iter_mut().zip(&correlation[lo..=hi]) {
+                *o_value = o.error(*c);
+            }
+            // `max` maps NaN to 0, so the first value equal to the row's minimum is its first
+            // smallest (the order of a plain scan).
+            let row_min = out.iter().copied().fold(f32::INFINITY, f32::min);
+            if row_min < min {
+                let i = out.iter().position(|&v| v == row_min).unwrap_or(0);
+                (argmin, min) = (Some(dy * w + lo + i), row_min);
+            }
+        },
+    );
     Some((
         ErrorImage {
             rotation: alpha,
             width: size[0],
             height: size[1],
-            shift,
+            shift: o.shift,
             values,
         },
         argmin,
     ))
 }
 
-/// Non-toroidal offsets `d` on one axis that keep the splatted mask (grid cells `0..=max_cell`)
-/// and the rotated patch corners (at `corner + d − shift`) inside `[0, n]`.
-fn clamped_range(
-    corners: &[[f32; 2]; 4],
-    axis: usize,
-    n: usize,
-    shift: i64,
-    max_cell: i64,
-) -> Range {
-    let n_i = n as i64;
-    let lo_c = corners
-        .iter()
-        .map(|c| c[axis])
-        .fold(f32::INFINITY, f32::min);
-    let hi_c = corners
-        .iter()
-        .map(|c| c[axis])
-        .fold(f32::NEG_INFINITY, f32::max);
-    if !lo_c.is_finite() || !hi_c.is_finite() {
-        return None;
-    }
-    let lo = 0i64.max((shift as f32 - lo_c).ceil() as i64);
-    let hi = (n_i - 1 - max_cell).min((n as f32 + shift as f32 - hi_c).floor() as i64);
-    (lo <= hi).then_some((lo, hi))
-}
-
-/// `−2 Σ_c (G_Ic ⋆ T_c)(d) + (G_J ⋆ |T|²)(d)` for every grid offset `d`, with `G` the bilinear
-/// splats of `J·I_c` and `J` at `u = q − 0.5 − shift` (wrapped onto the pattern grid), handed to
-/// `row_out(dy, row)` one row of offsets at a time. The splats are made in the smallest box of
-/// grid cells that holds them (the whole grid on an axis where the mask is wider than the
-/// pattern), not in full-size grids ([`super::fft2::Fft2::correlate_box`]).
-fn correlate(
-    texture: &PatternTexture,
-    cells: &[Cell],
-    rotated: &[[f32; 2]],
-    shift: [i64; 2],
-    row_out: impl FnMut(usize, &[f32]),
-) {
-    let n = [texture.width() as i64, texture.height() as i64];
-    // Integer base cell and fractions of each splat.
-    let taps: Vec<([i64; 2], [f32; 2])> = rotated
-        .iter()
-        .map(|q| {
-            let u = [q[0] - 0.5 - shift[0] as f32, q[1] - 0.5 - shift[1] as f32];
-            let base = [u[0].floor(), u[1].floor()];
-            (
-                [base[0] as i64, base[1] as i64],
-                [u[0] - base[0], u[1] - base[1]],
-            )
-        })
-        .collect();
-    // Per axis: the box's first grid cell, its size, and the map of a cell to its box index.
-    // Grid coordinates are ≥ 0 by the choice of `shift` (up to round-off); a box no larger than
-    // the grid holds each cell once, so a cell's box index is its distance from the box's first.
-    let axis = |a: usize| -> (i64, i64, bool) {
-        let lo = taps.iter().map(|t| t.0[a]).min().unwrap_or(0);
-        let hi = taps.iter().map(|t| t.0[a]).max().unwrap_or(0) + 1;
-        if hi - lo < n[a] {
-            (lo, hi - lo + 1, false)
-        } else {
-            (0, n[a], true)
-        }
-    };
-    let boxes_axes = [axis(0), axis(1)];
-    let local = |v: i64, a: usize| -> usize {
-        let (lo, _, wraps) = boxes_axes[a];
-        if wraps {
-            v.rem_euclid(n[a]) as usize
-        } else {
-            (v - lo) as usize
-        }
-    };
-    let (bw, bh) = (boxes_axes[0].1 as usize, boxes_axes[1].1 as usize);
-    let mut boxes = vec![vec![0.0f32; bw * bh]; 4];
-    for (cell, (base, frac)) in cells.iter().zip(&taps) {
-        let values = [
-            cell.weight * cell.colour[0],
-            cell.weight * cell.colour[1],
-            cell.weight * cell.colour[2],
-            cell.weight,
-        ];
-        let (x0, x1) = (local(base[0], 0), local(base[0] + 1, 0));
-        let (y0, y1) = (local(base[1], 1), local(base[1] + 1, 1));
-        for (x, y, f) in [
-            (x0, y0, (1.0 - frac[0]) * (1.0 - frac[1])),
-            (x1, y0, frac[0] * (1.0 - frac[1])),
-            (x0, y1, (1.0 - frac[0]) * frac[1]),
-            (x1, y1, frac[0] * frac[1]),
-        ] {
-            let index = y * bw + x;
-            for (grid, v) in boxes.iter_mut().zip(values) {
-                grid[index] += f * v;
-            }
-        }
-    }
-    let origin = [0, 1].map(|a| boxes_axes[a].0.rem_euclid(n[a]) as usize);
-    texture.fft().correlate_box(
-        origin,
-        [bw, bh],
-        &boxes,
-        &[-2.0, -2.0, -2.0, 1.0],
-        texture.spectra(),
-        row_out,
-    );
-}
-
 /// The smallest valid value, refined by parabolas; `(E / Σ J, placement)`.
 /// `index` = the first smallest value's, row-major (found while the image was filled).
-fn minimum(image: &ErrorImage, index: usize, toroidal: bool) -> Option<(f32, Placement)> {
+pub(super) fn minimum(
+    image: &ErrorImage,
+    index: usize,
+    toroidal: bool,
+) -> Option<(f32, Placement)> {
     let (w, h) = (image.width, image.height);
     let value = image.values[index];
     let (dx, dy) = (index % w, index / w);

@@ -297,6 +297,11 @@ impl PatternTexture {
         &self.fft
     }
 
+    /// The texel at row-major `index`: its colour-space value and `|T|²`.
+    pub(crate) fn texel(&self, index: usize) -> ([f32; 3], f32) {
+        (self.colour[index], self.norm_sq[index])
+    }
+
     /// Spectra of `T_0, T_1, T_2` and `|T|²`.
     pub(crate) fn spectra(&self) -> &[Vec<Complex32>; 4] {
         &self.spectra
