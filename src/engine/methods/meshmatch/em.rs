@@ -118,14 +118,6 @@ impl<'a> Mode<'a> {
             _ => None,
         }
     }
-
-    /// The copied vertices in texture-update mode.
-    pub fn copied(&self) -> Option<Copied<'a>> {
-        match *self {
-            Mode::Update(c) => Some(c),
-            _ => None,
-        }
-    }
 }
 
 /// Texture-update mode (§5.3, Figure 10): target vertices whose colour was copied from the source
