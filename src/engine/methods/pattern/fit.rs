@@ -65,7 +65,7 @@ use rayon::prelude::*;
 
 use super::fit_window;
 use super::mask::Mask;
-use super::orient::{orient, splat, FACTORS};
+use super::orient::{orient, splat, Oriented, Splat, FACTORS};
 use super::texture::PatternTexture;
 use crate::engine::rng;
 
@@ -180,15 +180,14 @@ pub fn best_fit_with_rotation(
     };
     let radius = fit_window::WINDOW_RADIUS_PER_FACTOR * s as i64;
     let refine = |k: usize, coarse: &[[f32; 2]]| -> Option<(f32, Placement)> {
-        let windowed = orient(texture, &cells, patch_bbox_px, alpha(k)).and_then(|o| {
-            let centres: Vec<[i64; 2]> = coarse
-                .iter()
-                .map(|t| [0, 1].map(|a| (t[a] * s as f32).round() as i64 + o.shift[a]))
-                .collect();
-            fit_window::windows_minimum(texture, &cells, &o, &centres, radius)
-        });
-        windowed.or_else(|| {
-            let (image, argmin) = error_image_of(texture, &cells, patch_bbox_px, alpha(k))?;
+        let o = orient(texture, &cells, patch_bbox_px, alpha(k))?;
+        let sp = splat(texture, &cells, &o.rotated, o.shift);
+        let centres: Vec<[i64; 2]> = coarse
+            .iter()
+            .map(|t| [0, 1].map(|a| (t[a] * s as f32).round() as i64 + o.shift[a]))
+            .collect();
+        fit_window::windows_minimum(texture, &o, &sp, &centres, radius).or_else(|| {
+            let (image, argmin) = oriented_error_image(texture, &o, &sp);
             minimum(&image, argmin?, texture.toroidal())
         })
     };
@@ -426,46 +425,30 @@ fn smallest_errors(
             d <= MINIMA_SEPARATION
         })
     };
-    let [(xlo, xhi), (ylo, yhi)] = o.ranges;
     let mut kept: Vec<(f32, [i64; 2])> = Vec::with_capacity(COARSE_MINIMA + 1);
     let mut worst = f32::INFINITY;
     let sp = splat(texture, cells, &o.rotated, o.shift);
-    texture.fft().correlate_box(
-        sp.origin,
-        sp.size,
-        &sp.boxes,
-        &FACTORS,
-        texture.spectra(),
-        |dy, correlation| {
-            if dy < ylo as usize || dy > yhi as usize {
-                return;
+    correlate_valid(texture, &o, &sp, |dy, xlo, correlation| {
+        for (i, c) in correlation.iter().enumerate() {
+            let v = o.error(*c);
+            if v >= worst {
+                continue;
             }
-            for (dx, c) in correlation
-                .iter()
-                .enumerate()
-                .take(xhi as usize + 1)
-                .skip(xlo as usize)
-            {
-                let v = o.error(*c);
-                if v >= worst {
-                    continue;
-                }
-                let d = [dx as i64, dy as i64];
-                if kept.iter().any(|(kv, kd)| *kv <= v && near(*kd, d)) {
-                    continue;
-                }
-                kept.retain(|(_, kd)| !near(*kd, d));
-                let at = kept.partition_point(|(kv, _)| *kv <= v);
-                kept.insert(at, (v, d));
-                kept.truncate(COARSE_MINIMA);
-                worst = if kept.len() == COARSE_MINIMA {
-                    kept[COARSE_MINIMA - 1].0
-                } else {
-                    f32::INFINITY
-                };
+            let d = [(xlo + i) as i64, dy as i64];
+            if kept.iter().any(|(kv, kd)| *kv <= v && near(*kd, d)) {
+                continue;
             }
-        },
-    );
+            kept.retain(|(_, kd)| !near(*kd, d));
+            let at = kept.partition_point(|(kv, _)| *kv <= v);
+            kept.insert(at, (v, d));
+            kept.truncate(COARSE_MINIMA);
+            worst = if kept.len() == COARSE_MINIMA {
+                kept[COARSE_MINIMA - 1].0
+            } else {
+                f32::INFINITY
+            };
+        }
+    });
     kept.into_iter()
         .map(|(v, d)| (v, [0, 1].map(|a| (d[a] - o.shift[a]) as f32)))
         .collect()
@@ -478,12 +461,51 @@ pub(super) fn error_image_of(
     alpha: f32,
 ) -> Option<(ErrorImage, Option<usize>)> {
     let o = orient(texture, cells, patch_bbox_px, alpha)?;
-    let [(xlo, xhi), (ylo, yhi)] = o.ranges;
-    let size = [texture.width() as usize, texture.height() as usize];
-    let w = size[0];
-    let mut values = vec![f32::INFINITY; size[0] * size[1]];
-    let (mut argmin, mut min) = (None, f32::INFINITY);
     let sp = splat(texture, cells, &o.rotated, o.shift);
+    Some(oriented_error_image(texture, &o, &sp))
+}
+
+/// [`error_image_of`] for an orientation and its splat already made.
+fn oriented_error_image(
+    texture: &PatternTexture,
+    o: &Oriented,
+    sp: &Splat,
+) -> (ErrorImage, Option<usize>) {
+    let (w, h) = (texture.width() as usize, texture.height() as usize);
+    let mut values = vec![f32::INFINITY; w * h];
+    let (mut argmin, mut min) = (None, f32::INFINITY);
+    correlate_valid(texture, o, sp, |dy, xlo, correlation| {
+        let out = &mut values[dy * w + xlo..dy * w + xlo + correlation.len()];
+        for (value, c) in out.iter_mut().zip(correlation) {
+            *value = o.error(*c);
+        }
+        // `max` maps NaN to 0, so the first value equal to the row's minimum is its first
+        // smallest (the order of a plain scan).
+        let row_min = out.iter().copied().fold(f32::INFINITY, f32::min);
+        if row_min < min {
+            let i = out.iter().position(|&v| v == row_min).unwrap_or(0);
+            (argmin, min) = (Some(dy * w + xlo + i), row_min);
+        }
+    });
+    let image = ErrorImage {
+        rotation: o.alpha,
+        width: w,
+        height: h,
+        shift: o.shift,
+        values,
+    };
+    (image, argmin)
+}
+
+/// The correlations of orientation `o` (splat `sp`) over the pattern's whole grid, handed to
+/// `row(dy, xlo, values)` for each row of valid offsets: `values[i]` belongs to `dx = xlo + i`.
+fn correlate_valid(
+    texture: &PatternTexture,
+    o: &Oriented,
+    sp: &Splat,
+    mut row: impl FnMut(usize, usize, &[f32]),
+) {
+    let [(xlo, xhi), (ylo, yhi)] = o.ranges.map(|(lo, hi)| (lo as usize, hi as usize));
     texture.fft().correlate_box(
         sp.origin,
         sp.size,
@@ -491,33 +513,11 @@ pub(super) fn error_image_of(
         &FACTORS,
         texture.spectra(),
         |dy, correlation| {
-            if dy < ylo as usize || dy > yhi as usize {
-                return;
-            }
-            let (lo, hi) = (xlo as usize, xhi as usize);
-            let out = &mut values[dy * w + lo..=dy * w + hi];
-            for (o_value, c) in out.iter_mut().zip(&correlation[lo..=hi]) {
-                *o_value = o.error(*c);
-            }
-            // `max` maps NaN to 0, so the first value equal to the row's minimum is its first
-            // smallest (the order of a plain scan).
-            let row_min = out.iter().copied().fold(f32::INFINITY, f32::min);
-            if row_min < min {
-                let i = out.iter().position(|&v| v == row_min).unwrap_or(0);
-                (argmin, min) = (Some(dy * w + lo + i), row_min);
+            if (ylo..=yhi).contains(&dy) {
+                row(dy, xlo, &correlation[xlo..=xhi]);
             }
         },
     );
-    Some((
-        ErrorImage {
-            rotation: alpha,
-            width: size[0],
-            height: size[1],
-            shift: o.shift,
-            values,
-        },
-        argmin,
-    ))
 }
 
 /// The smallest valid value, refined by parabolas; `(E / Σ J, placement)`.

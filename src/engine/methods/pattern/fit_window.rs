@@ -26,8 +26,8 @@ use std::cell::RefCell;
 use std::collections::HashMap;
 
 use super::fft2::Fft2;
-use super::fit::{minimum, Cell, ErrorImage, Placement};
-use super::orient::{splat, Oriented, Splat, FACTORS};
+use super::fit::{minimum, ErrorImage, Placement};
+use super::orient::{Oriented, Splat, FACTORS};
 use super::texture::PatternTexture;
 
 /// The window's half-width in full-resolution pixels per unit of the coarse factor `s`: the
@@ -62,15 +62,14 @@ fn fast_size(n: usize) -> usize {
 /// (module doc).
 pub(super) fn windows_minimum(
     texture: &PatternTexture,
-    cells: &[Cell],
     o: &Oriented,
+    sp: &Splat,
     centres: &[[i64; 2]],
     radius: i64,
 ) -> Option<(f32, Placement)> {
     if centres.is_empty() {
         return None;
     }
-    let sp = splat(texture, cells, &o.rotated, o.shift);
     if sp.wraps.iter().any(|&w| w) {
         return None;
     }
@@ -82,7 +81,7 @@ pub(super) fn windows_minimum(
     }
     let mut best: Option<Window> = None;
     for &centre in centres {
-        if let Some(w) = window(texture, o, &sp, centre, radius) {
+        if let Some(w) = window(texture, o, sp, centre, radius) {
             if best.as_ref().is_none_or(|b| w.value < b.value) {
                 best = Some(w);
             }
@@ -209,7 +208,7 @@ mod tests {
     use crate::engine::asset::DecodedImage;
     use crate::engine::methods::pattern::fit::{error_image_of, support_cells};
     use crate::engine::methods::pattern::mask::Mask;
-    use crate::engine::methods::pattern::orient::orient;
+    use crate::engine::methods::pattern::orient::{orient, splat};
     use crate::engine::rng::SplitMix64;
 
     #[test]
@@ -268,6 +267,7 @@ mod tests {
                 let argmin = argmin.unwrap();
                 let (full_error, full) = minimum(&image, argmin, toroidal).unwrap();
                 let o = orient(&texture, &cells, bbox, alpha).unwrap();
+                let sp = splat(&texture, &cells, &o.rotated, o.shift);
                 let at = [argmin % image.width, argmin / image.width].map(|v| v as i64);
                 // Centres one and three pixels off the minimum, wrapped past the grid's edge
                 // on a torus.
@@ -276,7 +276,7 @@ mod tests {
                     if toroidal {
                         centre[0] += 96;
                     }
-                    let (error, placement) = windows_minimum(&texture, &cells, &o, &[centre], 4)
+                    let (error, placement) = windows_minimum(&texture, &o, &sp, &[centre], 4)
                         .unwrap_or_else(|| panic!("seed {seed} α {alpha}: no window minimum"));
                     assert!(
                         (error - full_error).abs() <= 1e-4 * (1.0 + full_error),
@@ -292,7 +292,7 @@ mod tests {
                 }
                 // A window far from the minimum: a larger value, or none (minimum on its border).
                 let far = [at[0] + 30, at[1] + 25];
-                if let Some((error, _)) = windows_minimum(&texture, &cells, &o, &[far], 4) {
+                if let Some((error, _)) = windows_minimum(&texture, &o, &sp, &[far], 4) {
                     assert!(error >= full_error - 1e-5, "seed {seed} α {alpha}");
                     let exists = image
                         .values
