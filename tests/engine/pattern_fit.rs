@@ -417,6 +417,19 @@ fn mask_rasterisation_covers_the_band_with_its_colours() {
         rotation: 0.3,
         translation_px: [10.0, 5.0],
     };
+    // A band taller than one band of rows of the parallel rasterisation (32) too.
+    let big = rasterise_mask(&texture, &band_triangles(80.0, 6.0, &[0, 1], &truth));
+    assert!(big.height > 64);
+    // Area: top 92 × 6 + right 6 × 80 = 1,032 cells.
+    let covered = big.support.iter().filter(|&&s| s > 0.0).count();
+    assert!((980..=1090).contains(&covered), "{covered} cells");
+    for (index, &support) in big.support.iter().enumerate() {
+        if support > 0.0 {
+            let (i, j) = (index % big.width, index / big.width);
+            let want = texture.sample(truth.apply(big.cell_centre(i, j)));
+            assert!((0..3).all(|c| (want[c] - big.colour[index][c]).abs() < 1e-4));
+        }
+    }
     let mask = rasterise_mask(&texture, &band_triangles(16.0, 4.0, &[0, 1], &truth));
     // Area of the band: top 24 × 4 + right 4 × 16 = 160 cells.
     let covered = mask.support.iter().filter(|&&s| s > 0.0).count();

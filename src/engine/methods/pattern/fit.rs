@@ -167,17 +167,24 @@ pub fn best_fit_with_rotation(
     patch_bbox_px: [[f32; 2]; 2],
     phi: f32,
 ) -> Option<Fit> {
-    let cells = support_cells(mask);
-    if cells.is_empty() || !phi.is_finite() {
+    if !phi.is_finite() {
         return None;
     }
     let n = texture.orientations();
     let alpha = |k: usize| std::f32::consts::TAU * k as f32 / n as f32 + phi;
     let all: Vec<(usize, Vec<[f32; 2]>)> = (0..n).map(|k| (k, Vec::new())).collect();
-    let (candidates, s) = match texture.coarse() {
-        Some((coarse, s)) => (coarse_candidates(coarse, s, mask, patch_bbox_px, &alpha), s),
-        None => (all.clone(), 1),
-    };
+    // The full-resolution cells are gathered while the coarse ranking runs (it reads the mask
+    // merged per block, not them).
+    let (cells, (candidates, s)) = rayon::join(
+        || support_cells(mask),
+        || match texture.coarse() {
+            Some((coarse, s)) => (coarse_candidates(coarse, s, mask, patch_bbox_px, &alpha), s),
+            None => (all.clone(), 1),
+        },
+    );
+    if cells.is_empty() {
+        return None;
+    }
     let radius = fit_window::WINDOW_RADIUS_PER_FACTOR * s as i64;
     let refine = |k: usize, coarse: &[[f32; 2]]| -> Option<(f32, Placement)> {
         let o = orient(texture, &cells, patch_bbox_px, alpha(k))?;

@@ -16,9 +16,16 @@
 //! pattern's own FFT grid at each orientation, so the mask's size does not set an FFT size.
 //! A mask whose bounding box is wider or taller than [`MAX_MASK_SIDE`] frame pixels keeps the
 //! centred window of that size (a limit the paper does not need, since it renders into a
-//! fixed-size buffer); corners that are not finite drop their triangle.
+//! fixed-size buffer); corners that are not finite drop their triangle. Bands of
+//! [`BAND_ROWS`] rows are rasterised in parallel, each over every triangle in order, so every
+//! cell gets the same sums as in one pass (the driver waits for the mask with a core idle).
+
+use rayon::prelude::*;
 
 use super::texture::PatternTexture;
+
+/// Rows per band of the parallel rasterisation.
+const BAND_ROWS: usize = 32;
 
 /// The largest mask side, in frame pixels (4096: 16 M cells, 256 MB, at most).
 pub const MAX_MASK_SIDE: usize = 4096;
@@ -103,29 +110,45 @@ pub fn rasterise_mask(texture: &PatternTexture, triangles: &[MaskTriangle]) -> M
         }
     }
     let (w, h) = (size[0], size[1]);
-    let mut weight_sum = vec![0.0f32; w * h];
-    let mut colour_sum = vec![[0.0f32; 3]; w * h];
-    let mut support = vec![0.0f32; w * h];
-    for t in usable {
-        scan_triangle(texture, t, origin, [w, h], |cell, colour, weight| {
-            weight_sum[cell] += weight;
-            for c in 0..3 {
-                colour_sum[cell][c] += weight * colour[c];
+    // Bands of rows rasterised in parallel, each over every triangle in order: the same sums
+    // per cell as one pass (the driver waits for the mask, with the other core idle).
+    let bands: Vec<(Vec<[f32; 3]>, Vec<f32>)> = (0..h.div_ceil(BAND_ROWS))
+        .into_par_iter()
+        .map(|b| {
+            let rows = [b * BAND_ROWS, h.min((b + 1) * BAND_ROWS)];
+            let n = w * (rows[1] - rows[0]);
+            let mut weight_sum = vec![0.0f32; n];
+            let mut colour_sum = vec![[0.0f32; 3]; n];
+            let mut support = vec![0.0f32; n];
+            for t in &usable {
+                scan_triangle(texture, t, origin, [w, h], rows, |cell, colour, weight| {
+                    weight_sum[cell] += weight;
+                    for c in 0..3 {
+                        colour_sum[cell][c] += weight * colour[c];
+                    }
+                    support[cell] = support[cell].max(weight);
+                });
             }
-            support[cell] = support[cell].max(weight);
-        });
-    }
-    let colour = colour_sum
-        .iter()
-        .zip(&weight_sum)
-        .map(|(c, &s)| {
-            if s > 0.0 {
-                [c[0] / s, c[1] / s, c[2] / s]
-            } else {
-                [0.0; 3]
-            }
+            let colour = colour_sum
+                .iter()
+                .zip(&weight_sum)
+                .map(|(c, &s)| {
+                    if s > 0.0 {
+                        [c[0] / s, c[1] / s, c[2] / s]
+                    } else {
+                        [0.0; 3]
+                    }
+                })
+                .collect();
+            (colour, support)
         })
         .collect();
+    let mut colour = Vec::with_capacity(w * h);
+    let mut support = Vec::with_capacity(w * h);
+    for (c, s) in bands {
+        colour.extend(c);
+        support.extend(s);
+    }
     Mask {
         origin,
         width: w,
@@ -135,13 +158,15 @@ pub fn rasterise_mask(texture: &PatternTexture, triangles: &[MaskTriangle]) -> M
     }
 }
 
-/// Calls `emit(cell, colour, weight)` for every grid cell whose centre lies inside `t` (with a
-/// small tolerance so shared edges leave no gap) and gets a positive weight.
+/// Calls `emit(cell, colour, weight)` for every grid cell of rows `rows[0]..rows[1]` whose centre
+/// lies inside `t` (with a small tolerance so shared edges leave no gap) and gets a positive
+/// weight; `cell` counts from the first of those rows.
 fn scan_triangle(
     texture: &PatternTexture,
     t: &MaskTriangle,
     origin: [f32; 2],
     size: [usize; 2],
+    rows: [usize; 2],
     mut emit: impl FnMut(usize, [f32; 3], f32),
 ) {
     let [a, b, c] = t.frame_px.map(|p| [p[0] - origin[0], p[1] - origin[1]]);
@@ -158,6 +183,7 @@ fn scan_triangle(
     };
     let (x0, x1) = range(0, size[0]);
     let (y0, y1) = range(1, size[1]);
+    let (y0, y1) = (y0.max(rows[0]), y1.min(rows[1]));
     const TOLERANCE: f32 = -1e-5;
     for j in y0..y1 {
         let py = j as f32 + 0.5;
@@ -176,7 +202,7 @@ fn scan_triangle(
             let p = [0, 1].map(|k| {
                 l0 * t.pattern_px[0][k] + l1 * t.pattern_px[1][k] + l2 * t.pattern_px[2][k]
             });
-            emit(j * size[0] + i, texture.sample(p), weight);
+            emit((j - rows[0]) * size[0] + i, texture.sample(p), weight);
         }
     }
 }

@@ -290,7 +290,10 @@ impl PatternTexture {
             let base = p.floor();
             let frac = p - base;
             let base = base as i64;
-            if self.toroidal {
+            if (0..n - 1).contains(&base) {
+                // Inside the image: no wrap or clamp (and no integer division) needed.
+                (base, base + 1, frac)
+            } else if self.toroidal {
                 (base.rem_euclid(n), (base + 1).rem_euclid(n), frac)
             } else {
                 (base.clamp(0, n - 1), (base + 1).clamp(0, n - 1), frac)
