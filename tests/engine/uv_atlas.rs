@@ -231,6 +231,24 @@ fn a_flat_sheet_is_one_isometric_chart() {
     assert!(a.report.texel_density_spread < 1.01);
 }
 
+/// A corrugated sheet (z = a sin(kx), slopes up to about 70°) is developable, but its normals
+/// turn by more than the growth's 60° cone across each fold, so the growth cuts it into strips.
+/// The merge joins them again: one chart, isometric up to LSCM's round-off, fewer seams.
+#[test]
+fn charts_of_a_developable_sheet_merge_into_one() {
+    let mut s = grid(24, 12, 0.05);
+    for p in &mut s.positions {
+        p[2] = 0.08 * (f64::from(p[0]) * 35.0).sin() as f32;
+    }
+    let params = AtlasParams::default();
+    let adj = retex::engine::uv::charts::adjacency(&s);
+    let grown = retex::engine::uv::charts::grow(&adj, params.max_normal_deviation);
+    assert!(grown.len() >= 3, "the growth made {} charts", grown.len());
+    let a = check_atlas("corrugated sheet", &s, &params);
+    assert_eq!(a.report.chart_count, 1, "grown: {}", grown.len());
+    assert!(a.report.l2_stretch < 1.01, "{}", a.report.l2_stretch);
+}
+
 #[test]
 fn degenerate_faces_are_a_clear_error_and_empty_input_too() {
     let mut s = grid(4, 4, 1.0);

@@ -1,10 +1,11 @@
 //! Atlas orchestration (Lévy et al. 2002, §§4-5: segmentation, per-chart LSCM, packing): grow
 //! charts ([`super::charts::grow`]), parameterise each ([`super::param::lscm`]), split every
 //! chart that is not a disc, has a flipped triangle or exceeds the L2 stretch bound (Sander et
-//! al. 2001; the splitting replaces Lévy's §4 feature-driven seams, see [`super::charts`]), then
-//! turn each chart to its principal axes and pack ([`super::pack`]).
+//! al. 2001; the splitting replaces Lévy's §4 feature-driven seams, see [`super::charts`]), merge
+//! neighbouring charts while the union still passes those tests ([`super::merge`]), then turn
+//! each chart to its principal axes and pack ([`super::pack`]).
 //!
-//! Control stages: `atlas_charts` (adjacency, growth and the flattening rounds) and
+//! Control stages: `atlas_charts` (adjacency, growth, the flattening rounds and the merge) and
 //! `atlas_pack` (orientation, packing, and each chart laid out and measured, in parallel).
 //!
 //! Charts are parameterised in rounds, in parallel within a round (rayon); every result is
@@ -15,6 +16,7 @@
 use rayon::prelude::*;
 
 use super::charts::{adjacency, edge_key, grow, is_disc, split, Adjacency};
+use super::merge::merge_charts;
 use super::pack::{pack, Placement};
 use super::param::{chart_vertices, flatten_chart, local_triangle, signed_area, triangle_stretch};
 use super::report::{atlas_report, chart_report, AtlasReport, Totals, TriangleMeasure};
@@ -136,14 +138,14 @@ impl Atlas {
 }
 
 /// A chart flattened in world units (texture area = surface area).
-struct Flat {
-    faces: Vec<u32>,
-    vertices: Vec<u32>,
-    frame: Vec<[f64; 2]>,
+pub(super) struct Flat {
+    pub(super) faces: Vec<u32>,
+    pub(super) vertices: Vec<u32>,
+    pub(super) frame: Vec<[f64; 2]>,
 }
 
 /// Flattens a chart, or `None` when it must be split (see the module doc).
-fn flatten(surface: &Surface, faces: &[u32], max_stretch: f64) -> Option<Flat> {
+pub(super) fn flatten(surface: &Surface, faces: &[u32], max_stretch: f64) -> Option<Flat> {
     if faces.len() > 1 && !is_disc(surface, faces) {
         return None;
     }
@@ -296,7 +298,8 @@ pub fn generate(
     check(surface, params)?;
     let charts_stage = control.stage("atlas_charts", surface.faces.len() as u64)?;
     let adj = adjacency(surface);
-    let mut flats = flatten_all(surface, &adj, params, control, &charts_stage)?;
+    let flats = flatten_all(surface, &adj, params, control, &charts_stage)?;
+    let mut flats = merge_charts(surface, &adj, flats, params.max_stretch, control)?;
     let stage = control.stage("atlas_pack", flats.len() as u64)?;
     let sizes: Vec<[f64; 2]> = flats.iter_mut().map(orient).collect();
     let (scale, places) =
