@@ -134,8 +134,9 @@ impl Fft2 {
     }
 
     /// `Σ_c factors[c] · (g_c ⋆ t_c)` on the whole grid, `(g ⋆ t)(d) = Σ_x g(x) t(x + d)`
-    /// (circular), handed to `row_out(y, row)` one output row at a time (rows in order, each of
-    /// `width` values, already divided by `width · height`). Each `g_c` is zero outside a box of
+    /// (circular), handed to `row_out(y, row)` one output row at a time for the rows `y` with
+    /// `wanted(y)` (the others are not transformed back; rows in order, each of `width` values,
+    /// already divided by `width · height`). Each `g_c` is zero outside a box of
     /// `size = [bw, bh]` cells (`bw ≤ width`, `bh ≤ height`) whose first cell is grid cell
     /// `origin` (the box wraps around the grid): `boxes` holds the box row-major (`bw · bh`), the
     /// `C` channels of a cell together (the splat writes them with one access).
@@ -147,22 +148,8 @@ impl Fft2 {
     /// column is transformed forward, combined and transformed back while it is in cache (a
     /// profile of a 512² pattern put most of a fit's time in the copies of full-size images and
     /// spectra, not in the FFT kernels).
-    pub fn correlate_box<const C: usize>(
-        &self,
-        origin: [usize; 2],
-        size: [usize; 2],
-        boxes: &[[f32; C]],
-        factors: &[f32; C],
-        spectra: &[Vec<Complex32>],
-        row_out: impl FnMut(usize, &[f32]),
-    ) {
-        self.correlate_box_rows(origin, size, boxes, factors, spectra, |_| true, row_out);
-    }
-
-    /// [`correlate_box`](Self::correlate_box) handing over only the output rows `y` with
-    /// `wanted(y)` (the others are not transformed back).
     #[allow(clippy::too_many_arguments)]
-    pub fn correlate_box_rows<const C: usize>(
+    pub fn correlate_box<const C: usize>(
         &self,
         origin: [usize; 2],
         size: [usize; 2],
@@ -395,9 +382,17 @@ mod tests {
                 .collect();
             let factors = [-2.0, 1.0];
             let mut got = vec![f32::NAN; w * h];
-            fft.correlate_box(origin, size, &boxes, &factors, &spectra, |y, row| {
-                got[y * w..(y + 1) * w].copy_from_slice(row);
-            });
+            fft.correlate_box(
+                origin,
+                size,
+                &boxes,
+                &factors,
+                &spectra,
+                |_| true,
+                |y, row| {
+                    got[y * w..(y + 1) * w].copy_from_slice(row);
+                },
+            );
             for dy in 0..h {
                 for dx in 0..w {
                     let mut direct = 0.0;

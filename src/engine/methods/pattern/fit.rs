@@ -513,7 +513,7 @@ fn correlate_valid(
     mut row: impl FnMut(usize, usize, &[f32]),
 ) {
     let [(xlo, xhi), (ylo, yhi)] = o.ranges.map(|(lo, hi)| (lo as usize, hi as usize));
-    texture.fft().correlate_box_rows(
+    texture.fft().correlate_box(
         sp.origin,
         sp.size,
         &sp.boxes,

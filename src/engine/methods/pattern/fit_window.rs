@@ -13,7 +13,7 @@
 //! wrap-around for the window's offsets. All windows of an orientation share one crop size, so
 //! the mask's spectra (its four channels at cell `(0, 0)` of the crop grid) are made once per
 //! orientation; each window then correlates its pattern crop against them
-//! ([`super::fft2::Fft2::correlate_box_rows`] with the crop as the box: `Σ_y crop(y) mask(y + e)`
+//! ([`super::fft2::Fft2::correlate_box`] with the crop as the box: `Σ_y crop(y) mask(y + e)`
 //! is the window's sum at `d = −e`), transforming back only the window's rows. That is
 //! `4 + 5k` transforms of `N₀ N₁` for `k` windows against 5 of the pattern's size for the full
 //! search; the windows are used when they cost less by that count (a median mask of the 512²
@@ -195,7 +195,7 @@ fn window(
     let back = |e: usize, len: usize| if e == 0 { 0 } else { len - e };
     let mut values = vec![f32::INFINITY; count[0] * count[1]];
     let (mut argmin, mut min) = (None, f32::INFINITY);
-    fft.correlate_box_rows(
+    fft.correlate_box(
         [0, 0],
         crop,
         &cells,
