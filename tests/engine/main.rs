@@ -28,6 +28,7 @@ mod correlation_sweep;
 mod correlation_synthesis;
 mod detail_displacement;
 mod detail_features;
+mod detail_method;
 mod detail_metric;
 mod detail_remesh;
 mod detail_steerable;

@@ -2,7 +2,7 @@
 //! export validator-clean and read back as written, and a method that exists only in this test
 //! runs end to end through the pipeline from a registry, with no other file touched.
 
-use retex::engine::asset::constraints::{Constraints, OutputFormat};
+use retex::engine::asset::constraints::{Constraints, MethodId, OutputFormat};
 use retex::engine::asset::edits::{
     AttributeData, Edit, EditedAsset, EncodedImage, MorphDeltas, TextureSlot, TextureWrap,
 };
@@ -263,14 +263,15 @@ fn a_method_registered_in_a_test_runs_through_the_pipeline() {
         name: "p.jpg",
         bytes: &jpeg,
     });
-    // An id the built-in registry lacks ("detail"; "pattern" is registered now): a clear error
-    // listing what is available.
+    // An id a registry lacks (every id has a built-in method now, so one without `detail`): a
+    // clear error listing what is available.
     let detail = Constraints::from_json(br#"{"version": 1, "method": "detail"}"#).unwrap();
     let unregistered = TransferInput::new(target, detail).with_pattern(ImageInput {
         name: "p.jpg",
         bytes: &jpeg,
     });
-    match transfer(&unregistered, &Control::new()) {
+    let partial = Registry::builtin().without(MethodId::Detail);
+    match transfer_with(&partial, &unregistered, &Control::new()) {
         Err(e @ TransferError::MethodNotImplemented { .. }) => {
             assert!(
                 e.to_string().contains("available: project, meshmatch"),

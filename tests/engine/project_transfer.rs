@@ -421,13 +421,6 @@ fn bad_requests_fail_with_clear_errors() {
     let e = run(
         &spot,
         &spot,
-        constraints(json!({"version": 1, "method": "detail"})),
-    )
-    .unwrap_err();
-    assert!(e.to_string().contains("not implemented"), "{e}");
-    let e = run(
-        &spot,
-        &spot,
         constraints(json!({"version": 1, "params": {"max_distanse": 1}})),
     )
     .unwrap_err();

@@ -26,6 +26,7 @@ pub mod params;
 pub mod pattern;
 pub mod project;
 pub mod shared_params;
+pub mod tangents;
 
 mod method;
 mod schema;
@@ -66,6 +67,7 @@ impl Registry {
                 &elastiface::Elastiface,
                 &correlation::Correlation,
                 &pattern::Pattern,
+                &detail::Detail,
             ],
         }
     }
@@ -74,6 +76,13 @@ impl Registry {
     pub fn with(mut self, method: &'static dyn Method) -> Self {
         self.methods.retain(|m| m.id() != method.id());
         self.methods.push(method);
+        self
+    }
+
+    /// The same registry without the method `id` (tests of the not-implemented path, now that
+    /// every id has a method).
+    pub fn without(mut self, id: MethodId) -> Self {
+        self.methods.retain(|m| m.id() != id);
         self
     }
 

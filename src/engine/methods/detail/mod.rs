@@ -1,7 +1,10 @@
-//! Foundations of the `detail` method (Berkiten, Halber, Solomon, Ma, Li, Rusinkiewicz,
-//! *Learning Detail Transfer based on Geometric Features*, Eurographics 2017; issue 13).
+//! The `detail` method (Berkiten, Halber, Solomon, Ma, Li, Rusinkiewicz, *Learning Detail
+//! Transfer based on Geometric Features*, Eurographics 2017; issue 13): the detail of a sculpted
+//! source (its displacement over a smooth base) synthesised onto a target where the target's
+//! geometry resembles the source's, as a displacement texture, a normal map and `displaced.glb`.
 //!
-//! Not a registered method yet: only the building blocks exist, each tested on its own.
+//! The method ([`Detail`]) reads the source (detailed), its optional smooth base (`source_base`)
+//! and the target, runs [`pipeline`] and writes [`outputs`]. Its parts, each tested on its own:
 //! - [`metric`] (§3.2.3, eqs. 1-2): the learned Mahalanobis metric (two-block ADMM), its factor
 //!   `M = AᵀA` and the equal-weights baseline.
 //! - [`displacement`] (§3, Fig. 4): the base (given, or the source smoothed) and the signed
@@ -19,19 +22,144 @@
 //!   coarse to fine, from the source levels' displacements and both shapes' transformed
 //!   features; [`sweep`] the sweep order and source sampling, [`blend`] eqs. 5-7, and the
 //!   private `patch_match` the patches, the two-step matching and SYNTHESIZE-LEVEL.
+//! - [`pipeline`]: the steps in order, from surfaces to the finest target level's displacement.
+//! - [`outputs`]: the displacement and normal-map textures, TANGENT, the replaced UV-less
+//!   primitives and `displaced.glb`; [`params`] the `params` object.
 //!
-//! Missing (see README "detail"): wiring the pieces into one pipeline (hierarchy → displacement
-//! per level → features → metric → synthesis), the texture-space refinement (§3.3.2), the
-//! outputs, and the method's registration.
+//! Not done (README "detail"): the texture-space refinement (§3.3.2), and a source whose
+//! displacement comes as a texture (`materials[i].extras.retex_displacement`).
 
 pub mod blend;
 pub mod displacement;
 pub mod geometric_features;
 pub mod hierarchy;
 pub mod metric;
+pub mod outputs;
+pub mod params;
 mod patch_match;
 pub mod patches;
+pub mod pipeline;
 pub mod segmentation;
 pub mod steerable;
 pub mod sweep;
 pub mod synthesis;
+
+use serde::Serialize;
+
+use crate::engine::asset::constraints::{Constraints, ConstraintsError, MethodId};
+use crate::engine::control::Control;
+use crate::engine::mesh::{build_surface, WeldParams};
+use crate::engine::methods::{
+    texture_working_set, InputSpec, InputUse, Method, MethodError, MethodInput, MethodOutput,
+    WorkingSet,
+};
+use outputs::OutputSummary;
+use params::DetailParams;
+use pipeline::{transfer_detail, PipelineError, PipelineReport};
+
+/// Working-set bytes per face of `max_faces` (both shapes' finest levels, their remeshing,
+/// features, charts and the synthesis buffers).
+pub const FACE_BYTES: u64 = 1200;
+
+/// What `detail` reports.
+#[derive(Clone, Debug, Serialize)]
+pub struct DetailReport {
+    /// Levels, metric, synthesis statistics and timings.
+    #[serde(flatten)]
+    pub pipeline: PipelineReport,
+    /// What was written.
+    pub outputs: OutputSummary,
+    /// Seconds writing the outputs.
+    pub output_seconds: f64,
+    /// Things the user should know (lowercase sentences).
+    pub warnings: Vec<String>,
+}
+
+/// The `detail` method (registry entry).
+pub struct Detail;
+
+impl Method for Detail {
+    fn id(&self) -> MethodId {
+        MethodId::Detail
+    }
+
+    fn inputs(&self) -> InputSpec {
+        InputSpec {
+            source: InputUse::Required,
+            source_base: InputUse::Optional,
+            pattern: InputUse::Unused,
+        }
+    }
+
+    fn params_schema(&self) -> serde_json::Value {
+        crate::engine::methods::params::schema_of::<DetailParams>()
+    }
+
+    fn check(&self, constraints: &Constraints) -> Result<(), ConstraintsError> {
+        DetailParams::from_constraints(constraints).map(drop)
+    }
+
+    /// [`FACE_BYTES`] per face of `params.max_faces` for each of the two shapes, plus the two
+    /// baked textures.
+    fn working_set(&self, constraints: &Constraints, _input_triangles: u64) -> Option<WorkingSet> {
+        let params = DetailParams::from_constraints(constraints).ok()?;
+        let texture = texture_working_set(constraints);
+        let levels = 2 * params.max_faces as u64 * FACE_BYTES;
+        Some(WorkingSet {
+            bytes: levels.saturating_add(2 * texture.bytes),
+            field: if levels > 2 * texture.bytes {
+                "params.max_faces"
+            } else {
+                texture.field
+            },
+        })
+    }
+
+    fn run(&self, input: &MethodInput<'_>, control: &Control) -> Result<MethodOutput, MethodError> {
+        let params = DetailParams::from_constraints(input.constraints)?;
+        let weld = WeldParams {
+            relative_tolerance: params.weld_tolerance,
+        };
+        let surface = |side: &'static str, asset| {
+            build_surface(asset, &weld).map_err(|source| MethodError::Mesh { side, source })
+        };
+        let detailed = surface("source", input.source()?)?;
+        let base = input
+            .source_base
+            .map(|b| surface("source_base", b))
+            .transpose()?;
+        let target = surface("target", input.target)?;
+        let settings = params.pipeline(detailed.diagonal() as f64, target.diagonal() as f64);
+        let span = control.span(0.0, 0.9);
+        let result = transfer_detail(&detailed, base.as_ref(), &target, &settings, control)
+            .map_err(|e| match e {
+                PipelineError::Cancelled => MethodError::Cancelled,
+                PipelineError::Step { step, message } => MethodError::UnusableInput {
+                    field: None,
+                    kind: "unusable-mesh",
+                    message: format!("detail transfer failed at the {step} step: {message}"),
+                },
+            })?;
+        drop(span);
+        let _span = control.span(0.9, 1.0);
+        let clock = std::time::Instant::now();
+        let written = outputs::write_outputs(
+            input.target,
+            &target,
+            &result.surface,
+            &result.displacement,
+            input.constraints,
+            control,
+        )?;
+        let report = DetailReport {
+            pipeline: result.report,
+            outputs: written.summary,
+            output_seconds: clock.elapsed().as_secs_f64(),
+            warnings: written.warnings.clone(),
+        };
+        let mut out = MethodOutput::target(written.edits, &report);
+        out.files = written.files;
+        out.warnings = written.warnings;
+        Ok(out)
+    }
+}

@@ -363,3 +363,38 @@ pub fn detail_features(
         )?;
     Ok(out)
 }
+
+/// The 17-D detail feature of `vertices` only (row `i` for `vertices[i]`, as
+/// [`detail_features`] gives for all): the metric is learned on a sample of the finest level.
+///
+/// # Errors
+/// [`PatchError`] for bad input, a vertex out of range, or cancellation.
+pub fn detail_features_at(
+    surface: &Surface,
+    displacement: &[f64],
+    vertices: &[usize],
+    params: &PatchParams,
+    control: &Control,
+) -> Result<Vec<f64>, PatchError> {
+    let sampler = Sampler::new(surface, displacement, params)?;
+    if let Some(&v) = vertices.iter().find(|&&v| v >= surface.vertex_count()) {
+        return Err(PatchError::Param(format!("vertex {v} out of range")));
+    }
+    let pyramid = SteerablePyramid::new(params.size)?;
+    let stage = control.stage("detail features", vertices.len() as u64)?;
+    let mut out = vec![0.0; vertices.len() * FEATURES];
+    out.par_chunks_mut(FEATURES * 64)
+        .zip(vertices.par_chunks(64))
+        .try_for_each_init(
+            || sampler.scratch(),
+            |scratch, (block, vs)| -> Result<(), PatchError> {
+                for (row, &v) in block.chunks_mut(FEATURES).zip(vs) {
+                    sampler.sample(v, scratch);
+                    row.copy_from_slice(&pyramid.band_deviations(&scratch.grid)?);
+                }
+                stage.tick(vs.len() as u64)?;
+                Ok(())
+            },
+        )?;
+    Ok(out)
+}

@@ -161,3 +161,31 @@ pub fn sweep_order(surface: &Surface, counts: &[u32], seeds: usize) -> (Vec<usiz
     }
     (order, used)
 }
+
+/// Shortest edge-path lengths from the nearest of `sources` to every vertex (multi-source
+/// Dijkstra on edge lengths; infinite where unreachable).
+pub fn edge_distances(surface: &Surface, sources: &[usize]) -> Vec<f64> {
+    let nv = surface.vertex_count();
+    let (offsets, neighbours) = vertex_neighbours(surface);
+    let p = |v: usize| surface.positions[v].map(|x| x as f64);
+    let mut dist = vec![f64::INFINITY; nv];
+    let mut heap: BinaryHeap<Reverse<(u64, usize)>> = BinaryHeap::new();
+    for &s in sources.iter().filter(|&&s| s < nv) {
+        dist[s] = 0.0;
+        heap.push(Reverse((0.0f64.to_bits(), s)));
+    }
+    while let Some(Reverse((bits, v))) = heap.pop() {
+        if f64::from_bits(bits) > dist[v] {
+            continue;
+        }
+        for &q in &neighbours[offsets[v] as usize..offsets[v + 1] as usize] {
+            let q = q as usize;
+            let d = dist[v] + dist2(p(v), p(q)).sqrt();
+            if d < dist[q] {
+                dist[q] = d;
+                heap.push(Reverse((d.to_bits(), q)));
+            }
+        }
+    }
+    dist
+}

@@ -14,7 +14,7 @@
 //!    closest-point rounds with backward pairs (a deviation, see there);
 //! 5. [`texture`]: texture matching (§4) through the shared texel loop;
 //! 6. [`writeback`]: POSITION / NORMAL through the source's node transforms, or a morph target;
-//!    [`tangents`]: TANGENT recomputed with MikkTSpace;
+//!    [`crate::engine::methods::tangents`]: TANGENT recomputed with MikkTSpace;
 //! 7. [`metrics`]: Hausdorff distance, flipped triangles and residuals for the report;
 //! 8. [`blend`]: the linear morph of §5 (`params.blend.weight`) between the template and the
 //!    fitted result, positions and texture; with `params.blend.region` the part-based morph of
@@ -57,7 +57,6 @@ pub mod region_colors;
 pub mod region_texture;
 pub mod register;
 pub mod system;
-pub mod tangents;
 pub mod texture;
 pub mod writeback;
 

@@ -5,7 +5,7 @@
 //! brought into the primitive's mesh-local frame through the inverse of its node's world
 //! transform. NORMAL (where present) is recomputed from the fitted welded surface (area-weighted
 //! face normals) and carried to local space with the transpose of the node's linear part; a
-//! TANGENT is recomputed with MikkTSpace on the written positions and normals ([`super::tangents`]),
+//! TANGENT is recomputed with MikkTSpace on the written positions and normals ([`crate::engine::methods::tangents`]),
 //! or removed if the primitive lacks the UV set it follows. A vertex that lies on no
 //! surviving (non-degenerate) face (e.g. the corner of a triangle dropped as degenerate) has no
 //! welded vertex: it moves with the closest point of the source surface (same face and
@@ -25,8 +25,8 @@ use crate::engine::asset::{Asset, MeshInstance, Primitive};
 use crate::engine::math::{cross, normalize, sub};
 use crate::engine::mesh::Surface;
 
-use super::tangents::mikktspace_tangents;
 use super::MethodError;
+use crate::engine::methods::tangents::mikktspace_tangents;
 
 /// Per primitive, per vertex: the welded vertex of the (first) instance, or `u32::MAX`.
 pub fn welded_map(asset: &Asset, surface: &Surface) -> Vec<Vec<u32>> {

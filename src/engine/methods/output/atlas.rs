@@ -41,7 +41,7 @@ pub(super) struct AtlasLayout {
 }
 
 /// Whether primitive `p` may be replaced (no skin, no morph targets).
-pub(super) fn replaceable(asset: &Asset, p: usize) -> bool {
+pub(crate) fn replaceable(asset: &Asset, p: usize) -> bool {
     let prim = &asset.primitives[p];
     let j = &asset.json["meshes"][prim.mesh]["primitives"][prim.primitive];
     j.get("targets").is_none() && j["attributes"].get("JOINTS_0").is_none()

@@ -1,7 +1,8 @@
-//! TANGENT of the fitted source, recomputed with MikkTSpace (issue 10, "Interface": "TANGENT
-//! recomputed or dropped").
+//! TANGENT computed with MikkTSpace, shared by the methods that write tangent frames: ElastiFace
+//! recomputes the fitted source's (issue 10, "Interface": "TANGENT recomputed or dropped") and
+//! `detail` writes the frames its normal map is baked in (issue 13, "Interface").
 //!
-//! Not a step of the paper (Zell & Botsch 2013 keep the template's UVs and say nothing about
+//! Not a step of either paper (Zell & Botsch 2013 keep the template's UVs and say nothing about
 //! tangent frames); it is what glTF 2.0 §3.7.2.1 asks of a client that lacks tangents: MikkTSpace
 //! on the written positions, normals and the texture coordinates of the normal texture. The
 //! algorithm is the `bevy_mikktspace` crate (a safe Rust port of Mikkelsen's reference code,
@@ -94,8 +95,20 @@ pub fn mikktspace_tangents(
     positions: &[[f32; 3]],
     normals: &[[f32; 3]],
 ) -> Option<Vec<[f32; 4]>> {
+    mikktspace_tangents_in_set(asset, p, normal_uv_set(asset, p), positions, normals)
+}
+
+/// As [`mikktspace_tangents`], in UV set `set` (the set a normal texture about to be written will
+/// be read through).
+pub fn mikktspace_tangents_in_set(
+    asset: &Asset,
+    p: usize,
+    set: usize,
+    positions: &[[f32; 3]],
+    normals: &[[f32; 3]],
+) -> Option<Vec<[f32; 4]>> {
     let prim = &asset.primitives[p];
-    let uvs = prim.tex_coords.get(normal_uv_set(asset, p))?;
+    let uvs = prim.tex_coords.get(set)?;
     let mut frames = Frames {
         triangles: &prim.triangles,
         positions,

@@ -1,0 +1,510 @@
+//! The outputs of `detail` (issue 13, "Interface"; Berkiten et al. 2017 §3.3 end: the result is
+//! a displacement over the target): the synthesised displacement of the finest target level
+//! written into the target asset.
+//!
+//! - **Primitives with UVs** (the material's base-colour UV set): a 16-bit grayscale displacement
+//!   texture in `materials[i].extras.retex_displacement = {index, texCoord, scale, offset}`
+//!   (`d = offset + scale · value`, world units along the base normal), and a tangent-space
+//!   normal map (`normalTexture`, linear 8-bit) with the TANGENT attribute it was baked in
+//!   (MikkTSpace, [`crate::engine::methods::tangents`], in the same UV set) and NORMAL (kept when
+//!   present, else the area-weighted vertex normals written). Each texel's target point is
+//!   located on the finest level (closest point, BVH); the displacement is interpolated there,
+//!   and the normal map holds the normal of the *displaced* finest level at that point expressed
+//!   in the texel's frame: with `T`, `B = w · N × T`, `N` interpolated from the vertices (world
+//!   space, as a viewer builds them), the stored `c` is `[T B N]⁻¹ n` normalised, so that a
+//!   viewer's `normalize(c_x T + c_y B + c_z N)` gives back `n`.
+//! - **Primitives without UVs** (not skinned or morphed): replaced by their part of the displaced
+//!   finest level (each finest face goes to the primitive of the input face closest to its
+//!   centroid), in the primitive's local space (inverse of its first instance's transform), with
+//!   vertex normals. So for a target without UVs the output is the displaced refined mesh.
+//! - Always the result file `displaced.glb`: the finest level displaced, as one mesh.
+//!
+//! Written by hand: the bake goes through the shared writer ([`crate::engine::methods::output`]);
+//! the frame inversion and the split by primitive are a few lines each.
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::displacement::area_weighted_normals;
+use crate::engine::asset::constraints::Constraints;
+use crate::engine::asset::edits::{AttributeData, Edit, PrimitiveGeometry, TextureSlot};
+use crate::engine::asset::export::mesh_glb;
+use crate::engine::asset::Asset;
+use crate::engine::control::{Cancelled, Control};
+use crate::engine::math::{add, cross, dot, normalize, scale, to_f64};
+use crate::engine::mesh::Surface;
+use crate::engine::methods::output::{
+    write_field, FieldOutput, SurfaceField, SurfaceSample, TexelEncoding, TextureReport,
+};
+use crate::engine::methods::tangents::mikktspace_tangents_in_set;
+use crate::engine::methods::{MethodError, ResultFile};
+use crate::engine::spatial::Bvh;
+
+/// The material extra that carries the displacement texture.
+pub const DISPLACEMENT_KEY: &str = "retex_displacement";
+
+/// What was written.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct OutputSummary {
+    /// `d = offset + scale · value` of the displacement textures (world units).
+    pub displacement_offset: f64,
+    /// See `displacement_offset`.
+    pub displacement_scale: f64,
+    /// Displacement textures (one per material).
+    pub displacement_textures: Vec<TextureReport>,
+    /// Normal maps (one per material).
+    pub normal_textures: Vec<TextureReport>,
+    /// Primitives that received TANGENT.
+    pub tangent_primitives: usize,
+    /// Primitives replaced by their part of the displaced finest level (no UVs).
+    pub replaced_primitives: usize,
+    /// Vertices and faces of `displaced.glb`.
+    pub displaced_vertices: usize,
+    /// See `displaced_vertices`.
+    pub displaced_faces: usize,
+}
+
+/// What [`write_outputs`] produced.
+#[derive(Clone, Debug)]
+pub struct Written {
+    /// Edits of the target.
+    pub edits: Vec<Edit>,
+    /// `displaced.glb`.
+    pub files: Vec<ResultFile>,
+    /// What was written.
+    pub summary: OutputSummary,
+    /// Things the user should know.
+    pub warnings: Vec<String>,
+}
+
+/// The finest level, located by closest point.
+struct Finest<'a> {
+    surface: &'a Surface,
+    bvh: Bvh,
+    displacement: &'a [f64],
+    /// Unit normals of the displaced level per vertex.
+    displaced_normals: Vec<[f64; 3]>,
+}
+
+impl Finest<'_> {
+    /// Face and barycentric coordinates of the closest point to `p`.
+    fn locate(&self, p: [f32; 3], hint: Option<u32>) -> Option<(usize, [f64; 3])> {
+        let mut bound = f32::INFINITY;
+        if let Some(h) = hint {
+            bound = self.surface.hint_bound(h as usize, p);
+        }
+        let hit = self.bvh.closest_point(p, bound)?;
+        Some((hit.face as usize, hit.bary.map(|b| b as f64)))
+    }
+
+    fn displacement_at(&self, f: usize, b: [f64; 3]) -> f64 {
+        let face = self.surface.faces[f];
+        (0..3)
+            .map(|k| b[k] * self.displacement[face[k] as usize])
+            .sum()
+    }
+
+    fn normal_at(&self, f: usize, b: [f64; 3]) -> [f64; 3] {
+        let face = self.surface.faces[f];
+        normalize((0..3).fold([0.0; 3], |acc, k| {
+            add(acc, scale(self.displaced_normals[face[k] as usize], b[k]))
+        }))
+    }
+}
+
+struct DisplacementField<'a> {
+    finest: &'a Finest<'a>,
+    offset: f64,
+    scale: f64,
+}
+
+impl SurfaceField for DisplacementField<'_> {
+    fn sample(&self, at: &SurfaceSample, hint: Option<u32>, out: &mut [f32; 4]) -> Option<u32> {
+        let (f, b) = self.finest.locate(at.position, hint)?;
+        let d = self.finest.displacement_at(f, b);
+        out[0] = ((d - self.offset) / self.scale) as f32;
+        Some(f as u32)
+    }
+}
+
+/// World-space vertex frames of one primitive: unit normal and tangent with handedness.
+struct Frames {
+    normals: Vec<[f64; 3]>,
+    tangents: Vec<[f64; 4]>,
+}
+
+struct NormalField<'a> {
+    finest: &'a Finest<'a>,
+    /// Per primitive: its frames when it receives the normal map.
+    frames: Vec<Option<Frames>>,
+    triangles: Vec<&'a [[u32; 3]]>,
+}
+
+/// Solves `[t b n] c = x` (columns) by Cramer's rule; `None` when singular.
+fn solve3(t: [f64; 3], b: [f64; 3], n: [f64; 3], x: [f64; 3]) -> Option<[f64; 3]> {
+    let det = dot(t, cross(b, n));
+    if det.abs() < 1e-12 {
+        return None;
+    }
+    Some([
+        dot(x, cross(b, n)) / det,
+        dot(t, cross(x, n)) / det,
+        dot(t, cross(b, x)) / det,
+    ])
+}
+
+impl SurfaceField for NormalField<'_> {
+    fn sample(&self, at: &SurfaceSample, hint: Option<u32>, out: &mut [f32; 4]) -> Option<u32> {
+        let frames = self.frames.get(at.primitive)?.as_ref()?;
+        let tri = self.triangles[at.primitive][at.triangle];
+        let w = at.barycentric.map(|x| x as f64);
+        let mut n = [0.0; 3];
+        let mut t = [0.0; 3];
+        for k in 0..3 {
+            n = add(n, scale(frames.normals[tri[k] as usize], w[k]));
+            let tk = frames.tangents[tri[k] as usize];
+            t = add(t, scale([tk[0], tk[1], tk[2]], w[k]));
+        }
+        let handedness = frames.tangents[tri[0] as usize][3];
+        let b = scale(cross(n, t), handedness);
+        let (f, bary) = self.finest.locate(at.position, hint)?;
+        let target = self.finest.normal_at(f, bary);
+        let c = normalize(solve3(t, b, n, target).unwrap_or([0.0, 0.0, 1.0]));
+        for k in 0..3 {
+            out[k] = (0.5 * c[k] + 0.5) as f32;
+        }
+        Some(f as u32)
+    }
+}
+
+/// The UV set the base-colour texture of primitive `p` is read through (0 without one).
+fn uv_set(asset: &Asset, p: usize) -> usize {
+    asset.primitives[p]
+        .material
+        .and_then(|m| asset.materials.get(m))
+        .and_then(|m| m.base_color_texture)
+        .map_or(0, |t| t.tex_coord as usize)
+}
+
+/// Whether primitive `p` is baked into (has the UV set) rather than replaced.
+fn has_uvs(asset: &Asset, constraints: &Constraints, p: usize) -> bool {
+    !constraints.output.all_vertex_colors()
+        && asset.primitives[p].tex_coords.len() > uv_set(asset, p)
+}
+
+/// Area-weighted unit normals of local positions (f32); +z on vertices that only touch
+/// degenerate triangles (a UV sphere's poles), where no direction is right and glTF wants a unit
+/// vector.
+fn local_normals(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Vec<[f32; 3]> {
+    let s = Surface::from_triangles(positions.to_vec(), triangles.to_vec());
+    area_weighted_normals(&s)
+        .into_iter()
+        .map(|n| match dot(n, n) > 0.5 {
+            true => n.map(|x| x as f32),
+            false => [0.0, 0.0, 1.0],
+        })
+        .collect()
+}
+
+/// The linear part `m` (row-major) and translation of an instance's local-to-world transform.
+fn affine(asset: &Asset, p: usize) -> Option<([[f64; 3]; 3], [f64; 3])> {
+    let mesh = asset.primitives[p].mesh;
+    let inst = asset.instances.iter().find(|i| i.mesh == mesh)?;
+    let w = &inst.world;
+    Some((
+        std::array::from_fn(|r| std::array::from_fn(|c| w[c][r])),
+        [w[3][0], w[3][1], w[3][2]],
+    ))
+}
+
+fn mat_vec(m: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
+    std::array::from_fn(|r| dot(m[r], v))
+}
+
+/// The inverse of a 3×3 matrix (`None` when singular).
+fn inverse3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
+    let cols = [
+        [m[0][0], m[1][0], m[2][0]],
+        [m[0][1], m[1][1], m[2][1]],
+        [m[0][2], m[1][2], m[2][2]],
+    ];
+    let det = dot(cols[0], cross(cols[1], cols[2]));
+    if det.abs() < 1e-300 || !det.is_finite() {
+        return None;
+    }
+    // Rows of the inverse are the cross products of the columns over the determinant.
+    let r0 = scale(cross(cols[1], cols[2]), 1.0 / det);
+    let r1 = scale(cross(cols[2], cols[0]), 1.0 / det);
+    let r2 = scale(cross(cols[0], cols[1]), 1.0 / det);
+    Some([r0, r1, r2])
+}
+
+/// NORMAL (when missing) and TANGENT edits of a UV primitive, and its world-space frames.
+fn frames_of(asset: &Asset, p: usize, edits: &mut Vec<Edit>) -> Option<Frames> {
+    let prim = &asset.primitives[p];
+    let (m, _) = affine(asset, p)?;
+    let normals = match &prim.normals {
+        Some(n) => n.clone(),
+        None => {
+            let n = local_normals(&prim.positions, &prim.triangles);
+            edits.push(Edit::SetAttribute {
+                primitive: p,
+                name: "NORMAL".into(),
+                data: AttributeData::Vec3(n.clone()),
+            });
+            n
+        }
+    };
+    let tangents =
+        mikktspace_tangents_in_set(asset, p, uv_set(asset, p), &prim.positions, &normals)?;
+    edits.push(Edit::SetAttribute {
+        primitive: p,
+        name: "TANGENT".into(),
+        data: AttributeData::Vec4(tangents.clone()),
+    });
+    // Normals carry through the inverse transpose, tangents through the matrix (glTF §3.7.2.1).
+    let inv = inverse3(&m)?;
+    let inv_t: [[f64; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| inv[c][r]));
+    Some(Frames {
+        normals: normals
+            .iter()
+            .map(|n| normalize(mat_vec(&inv_t, to_f64(*n))))
+            .collect(),
+        tangents: tangents
+            .iter()
+            .map(|t| {
+                let w = normalize(mat_vec(&m, [t[0] as f64, t[1] as f64, t[2] as f64]));
+                [w[0], w[1], w[2], t[3] as f64]
+            })
+            .collect(),
+    })
+}
+
+/// The displaced finest level's faces split by the input primitive nearest to each face's
+/// centroid, each part in its primitive's local space.
+fn replacements(
+    asset: &Asset,
+    input: &Surface,
+    finest: &Surface,
+    displaced: &[[f32; 3]],
+    prims: &[usize],
+) -> Vec<Edit> {
+    let bvh = Bvh::build(&input.positions, &input.faces);
+    let owner: Vec<Option<usize>> = finest
+        .faces
+        .par_iter()
+        .map(|f| {
+            let c = f.iter().fold([0.0f32; 3], |a, &v| {
+                let q = finest.positions[v as usize];
+                [a[0] + q[0] / 3.0, a[1] + q[1] / 3.0, a[2] + q[2] / 3.0]
+            });
+            let hit = bvh.closest_point(c, f32::INFINITY)?;
+            input
+                .origins
+                .get(hit.face as usize)
+                .map(|o| o.primitive as usize)
+        })
+        .collect();
+    let mut edits = Vec::new();
+    for &p in prims {
+        let Some((m, t)) = affine(asset, p) else {
+            continue;
+        };
+        let Some(inv) = inverse3(&m) else {
+            continue;
+        };
+        let mut index = vec![u32::MAX; displaced.len()];
+        let mut g = PrimitiveGeometry::default();
+        for (f, face) in finest.faces.iter().enumerate() {
+            if owner[f] != Some(p) {
+                continue;
+            }
+            let tri = face.map(|v| {
+                let v = v as usize;
+                if index[v] == u32::MAX {
+                    index[v] = g.positions.len() as u32;
+                    let w = to_f64(displaced[v]);
+                    let local = mat_vec(&inv, [w[0] - t[0], w[1] - t[1], w[2] - t[2]]);
+                    g.positions.push(local.map(|x| x as f32));
+                }
+                index[v]
+            });
+            g.triangles.push(tri);
+        }
+        if g.triangles.is_empty() {
+            continue;
+        }
+        g.normals = Some(local_normals(&g.positions, &g.triangles));
+        edits.push(Edit::ReplacePrimitive {
+            primitive: p,
+            geometry: g,
+        });
+    }
+    edits
+}
+
+/// Writes the outputs (see the module doc): edits of the target, `displaced.glb`, the summary
+/// and warnings.
+///
+/// # Errors
+/// [`MethodError::Cancelled`]; [`MethodError::Internal`] if `displaced.glb` cannot be written.
+pub fn write_outputs(
+    target: &Asset,
+    input: &Surface,
+    finest: &Surface,
+    displacement: &[f64],
+    constraints: &Constraints,
+    control: &Control,
+) -> Result<Written, MethodError> {
+    let normals = area_weighted_normals(finest);
+    let displaced: Vec<[f32; 3]> = (finest.positions.iter().zip(&normals))
+        .zip(displacement)
+        .map(|((p, n), d)| add(to_f64(*p), scale(*n, *d)).map(|x| x as f32))
+        .collect();
+    let glb = mesh_glb(&displaced, &finest.faces)
+        .map_err(|e| MethodError::Internal(format!("displaced.glb: {e}")))?;
+    let displaced_surface = Surface::from_triangles(displaced.clone(), finest.faces.clone());
+    let located = Finest {
+        surface: finest,
+        bvh: Bvh::build(&finest.positions, &finest.faces),
+        displacement,
+        displaced_normals: area_weighted_normals(&displaced_surface),
+    };
+    let (lo, hi) = displacement
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &d| {
+            (a.min(d), b.max(d))
+        });
+    let (offset, range) = if lo < hi {
+        (lo, hi - lo)
+    } else {
+        (lo.min(0.0), 1.0)
+    };
+    let mut summary = OutputSummary {
+        displacement_offset: offset,
+        displacement_scale: range,
+        displaced_vertices: displaced.len(),
+        displaced_faces: finest.faces.len(),
+        ..OutputSummary::default()
+    };
+    let n = target.primitives.len();
+    let (uv_prims, bare): (Vec<usize>, Vec<usize>) =
+        (0..n).partition(|&p| has_uvs(target, constraints, p));
+    let mut warnings = Vec::new();
+    let replaceable: Vec<usize> = bare
+        .iter()
+        .copied()
+        .filter(|&p| crate::engine::methods::output::atlas_replaceable(target, p))
+        .collect();
+    if replaceable.len() < bare.len() {
+        warnings.push(format!(
+            "{} skinned or morphed primitive(s) without uvs kept their geometry: detail could not \
+             be written into them",
+            bare.len() - replaceable.len()
+        ));
+    }
+    let mut edits = replacements(target, input, finest, &displaced, &replaceable);
+    summary.replaced_primitives = edits.len();
+    if uv_prims.is_empty() {
+        return Ok(Written {
+            edits,
+            files: vec![result_file(glb)],
+            summary,
+            warnings,
+        });
+    }
+    let mut frames: Vec<Option<Frames>> = (0..n).map(|_| None).collect();
+    for &p in &uv_prims {
+        control
+            .check()
+            .map_err(|_: Cancelled| MethodError::Cancelled)?;
+        frames[p] = frames_of(target, p, &mut edits);
+    }
+    summary.tangent_primitives = frames.iter().filter(|f| f.is_some()).count();
+    let normal_field = NormalField {
+        finest: &located,
+        frames,
+        triangles: target
+            .primitives
+            .iter()
+            .map(|p| p.triangles.as_slice())
+            .collect(),
+    };
+    let out = |slot, encoding, name| FieldOutput {
+        slot,
+        encoding,
+        name,
+        vertex_attribute: None,
+        vertex_samples: 0,
+    };
+    let span = control.span(0.0, 0.5);
+    let (normal_edits, normal_report) = write_field(
+        target,
+        constraints,
+        &out(
+            TextureSlot::Normal { scale: 1.0 },
+            TexelEncoding::Linear8 { channels: 3 },
+            "detail_normal",
+        ),
+        &normal_field,
+        control,
+    )?;
+    drop(span);
+    let _span = control.span(0.5, 1.0);
+    let field = DisplacementField {
+        finest: &located,
+        offset,
+        scale: range,
+    };
+    let (disp_edits, disp_report) = write_field(
+        target,
+        constraints,
+        &out(
+            TextureSlot::Extras(DISPLACEMENT_KEY),
+            TexelEncoding::Gray16,
+            "detail_displacement",
+        ),
+        &field,
+        control,
+    )?;
+    // A normal-map edit without a material creates one at the end of the material list; the
+    // displacement of the same primitives goes into that material.
+    let created = target.json["materials"].as_array().map_or(0, |m| m.len());
+    edits.extend(normal_edits);
+    let extra = serde_json::json!({ "scale": range, "offset": offset });
+    for mut e in disp_edits {
+        if let Edit::SetTexture { material, .. } = &mut e {
+            let m = *material.get_or_insert(created);
+            edits.push(Edit::SetMaterialExtra {
+                material: m,
+                key: DISPLACEMENT_KEY.into(),
+                value: extra.clone(),
+            });
+        }
+        edits.push(e);
+    }
+    warnings.extend(
+        (normal_report
+            .warnings
+            .into_iter()
+            .chain(disp_report.warnings))
+        .filter(|w| !w.contains("have no UVs")),
+    );
+    warnings.dedup();
+    summary.normal_textures = normal_report.textures;
+    summary.displacement_textures = disp_report.textures;
+    Ok(Written {
+        edits,
+        files: vec![result_file(glb)],
+        summary,
+        warnings,
+    })
+}
+
+fn result_file(bytes: Vec<u8>) -> ResultFile {
+    ResultFile {
+        name: "displaced.glb".into(),
+        media_type: "model/gltf-binary".into(),
+        bytes,
+    }
+}
