@@ -154,9 +154,10 @@ fn main() -> ExitCode {
             "elastiface" => cli::bench_elastiface::run(&assets, runs),
             "correlation" => cli::bench_correlation::run(&assets, runs),
             "pattern" => cli::bench_pattern::run(&assets, runs),
+            "detail" => cli::bench_detail::run(&assets, runs),
             "geometry" => cli::bench_geometry::run(runs),
             other => Err(format!(
-                "no benchmark for method {other:?}: expected project, atlas, meshmatch, elastiface, correlation, pattern or geometry"
+                "no benchmark for method {other:?}: expected project, atlas, meshmatch, elastiface, correlation, pattern, detail or geometry"
             )),
         },
         #[cfg(feature = "service")]

@@ -3,6 +3,7 @@
 pub mod bench;
 pub mod bench_atlas;
 pub mod bench_correlation;
+pub mod bench_detail;
 pub mod bench_elastiface;
 pub mod bench_geometry;
 pub mod bench_meshmatch;

@@ -8,11 +8,16 @@
 //!   normal map (`normalTexture`, linear 8-bit) with the TANGENT attribute it was baked in
 //!   (MikkTSpace, [`crate::engine::methods::tangents`], in the same UV set) and NORMAL (kept when
 //!   present, else the area-weighted vertex normals written). Each texel's target point is
-//!   located on the finest level (closest point, BVH); the displacement is interpolated there,
-//!   and the normal map holds the normal of the *displaced* finest level at that point expressed
-//!   in the texel's frame: with `T`, `B = w · N × T`, `N` interpolated from the vertices (world
-//!   space, as a viewer builds them), the stored `c` is `[T B N]⁻¹ n` normalised, so that a
-//!   viewer's `normalize(c_x T + c_y B + c_z N)` gives back `n`.
+//!   located on the finest level (closest point, BVH); the displacement is interpolated there.
+//!   The normal map holds only the detail: the texel's own shading normal `N` tilted by the
+//!   displacement's surface gradient, `n = normalize(N − ∇d)` (first order in `d`; the gradient
+//!   per finest vertex is the area-weighted mean of its faces' constant gradients, interpolated),
+//!   expressed in the texel's frame: with `T`, `B = w · N × T`, `N` interpolated from the
+//!   vertices (world space, as a viewer builds them), the stored `c` is `[T B N]⁻¹ n`
+//!   normalised, so that a viewer's `normalize(c_x T + c_y B + c_z N)` gives back `n`. Baking
+//!   the displaced finest level's own normals instead (what a high-to-low baker does) was tried
+//!   first: it also baked the gap between the remeshed level and the target (ears, nostrils and
+//!   lips of a head showed up as detail).
 //! - **Primitives without UVs** (not skinned or morphed): replaced by their part of the displaced
 //!   finest level (each finest face goes to the primitive of the input face closest to its
 //!   centroid), in the primitive's local space (inverse of its first instance's transform), with
@@ -31,7 +36,7 @@ use crate::engine::asset::edits::{AttributeData, Edit, PrimitiveGeometry, Textur
 use crate::engine::asset::export::mesh_glb;
 use crate::engine::asset::Asset;
 use crate::engine::control::{Cancelled, Control};
-use crate::engine::math::{add, cross, dot, normalize, scale, to_f64};
+use crate::engine::math::{add, cross, dot, normalize, scale, sub, to_f64};
 use crate::engine::mesh::Surface;
 use crate::engine::methods::output::{
     write_field, FieldOutput, SurfaceField, SurfaceSample, TexelEncoding, TextureReport,
@@ -82,8 +87,9 @@ struct Finest<'a> {
     surface: &'a Surface,
     bvh: Bvh,
     displacement: &'a [f64],
-    /// Unit normals of the displaced level per vertex.
-    displaced_normals: Vec<[f64; 3]>,
+    /// Surface gradient of the displacement per vertex (area-weighted mean of the faces'
+    /// constant gradients), world units per world unit.
+    gradients: Vec<[f64; 3]>,
 }
 
 impl Finest<'_> {
@@ -104,11 +110,57 @@ impl Finest<'_> {
             .sum()
     }
 
-    fn normal_at(&self, f: usize, b: [f64; 3]) -> [f64; 3] {
+    fn gradient_at(&self, f: usize, b: [f64; 3]) -> [f64; 3] {
         let face = self.surface.faces[f];
-        normalize((0..3).fold([0.0; 3], |acc, k| {
-            add(acc, scale(self.displaced_normals[face[k] as usize], b[k]))
-        }))
+        (0..3).fold([0.0; 3], |acc, k| {
+            add(acc, scale(self.gradients[face[k] as usize], b[k]))
+        })
+    }
+}
+
+/// Per vertex, the area-weighted mean of the constant surface gradients of the piecewise-linear
+/// `values` over the incident faces.
+fn vertex_gradients(s: &Surface, values: &[f64]) -> Vec<[f64; 3]> {
+    let mut sum = vec![[0.0; 3]; s.vertex_count()];
+    let mut area = vec![0.0; s.vertex_count()];
+    for f in &s.faces {
+        let p = f.map(|v| to_f64(s.positions[v as usize]));
+        let n2 = cross(sub(p[1], p[0]), sub(p[2], p[0]));
+        let a2 = dot(n2, n2);
+        if a2 <= 0.0 {
+            continue;
+        }
+        // ∇φ_i = (n × e_i) / (2A) with e_i the edge opposite corner i; here n2 = 2A n.
+        let mut g = [0.0; 3];
+        for i in 0..3 {
+            let e = sub(p[(i + 2) % 3], p[(i + 1) % 3]);
+            g = add(g, scale(cross(n2, e), values[f[i] as usize] / a2));
+        }
+        let w = a2.sqrt();
+        for &v in f {
+            sum[v as usize] = add(sum[v as usize], scale(g, w));
+            area[v as usize] += w;
+        }
+    }
+    sum.iter()
+        .zip(&area)
+        .map(|(g, a)| {
+            if *a > 0.0 {
+                scale(*g, 1.0 / a)
+            } else {
+                [0.0; 3]
+            }
+        })
+        .collect()
+}
+
+impl Finest<'_> {
+    /// The unit normal of the surface displaced by the displacement, at a point whose undisplaced
+    /// unit normal is `n`: `n − ∇d` with the gradient's tangential part (first order in `d`).
+    fn displaced_normal(&self, f: usize, b: [f64; 3], n: [f64; 3]) -> [f64; 3] {
+        let g = self.gradient_at(f, b);
+        let tangential = sub(g, scale(n, dot(g, n)));
+        normalize(sub(n, tangential))
     }
 }
 
@@ -168,7 +220,7 @@ impl SurfaceField for NormalField<'_> {
         let handedness = frames.tangents[tri[0] as usize][3];
         let b = scale(cross(n, t), handedness);
         let (f, bary) = self.finest.locate(at.position, hint)?;
-        let target = self.finest.normal_at(f, bary);
+        let target = self.finest.displaced_normal(f, bary, normalize(n));
         let c = normalize(solve3(t, b, n, target).unwrap_or([0.0, 0.0, 1.0]));
         for k in 0..3 {
             out[k] = (0.5 * c[k] + 0.5) as f32;
@@ -363,12 +415,11 @@ pub fn write_outputs(
         .collect();
     let glb = mesh_glb(&displaced, &finest.faces)
         .map_err(|e| MethodError::Internal(format!("displaced.glb: {e}")))?;
-    let displaced_surface = Surface::from_triangles(displaced.clone(), finest.faces.clone());
     let located = Finest {
         surface: finest,
         bvh: Bvh::build(&finest.positions, &finest.faces),
         displacement,
-        displaced_normals: area_weighted_normals(&displaced_surface),
+        gradients: vertex_gradients(finest, displacement),
     };
     let (lo, hi) = displacement
         .iter()

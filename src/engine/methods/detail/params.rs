@@ -75,6 +75,12 @@ pub struct DetailParams {
     /// Source patches sampled per level. Default 1024.
     #[schemars(range(min = 16, max = 65_536))]
     pub source_samples: usize,
+    /// Scale the source (and its base) about its bounding-box centre so that its bounding-box
+    /// diagonal equals the target's before anything else: the hierarchy shares absolute edge
+    /// lengths and the detail keeps its world size, which only means something when both models
+    /// are in the same units (a scan in mm onto a head in m would not). Default true; false
+    /// keeps the source's detail at its own world size.
+    pub match_scale: bool,
     /// Shared: [`SharedParams::weld_tolerance`].
     pub weld_tolerance: f32,
 }
@@ -96,6 +102,7 @@ impl Default for DetailParams {
             patch_size: synthesis.initial_patch_size,
             candidates: synthesis.candidates,
             source_samples: synthesis.source_samples,
+            match_scale: true,
             weld_tolerance: SharedParams::default().weld_tolerance,
         }
     }
