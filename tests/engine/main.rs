@@ -30,6 +30,7 @@ mod detail_displacement;
 mod detail_features;
 mod detail_method;
 mod detail_metric;
+mod detail_properties;
 mod detail_remesh;
 mod detail_steerable;
 mod elastiface;

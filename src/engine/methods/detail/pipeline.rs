@@ -9,7 +9,9 @@
 //!    halving per level ([`super::hierarchy::build_pair`]).
 //! 3. **Source displacement** per level: the signed distance along each level vertex's base
 //!    normal to the detailed surface ([`super::displacement::displacement`]).
-//! 4. **Geometric features** (§3.2.2), z-scored per shape. *Computed once* on the *feature level*
+//! 4. **Geometric features** (§3.2.2), z-scored per shape; a column constant on either shape
+//!    (std below [`super::metric::RELATIVE_STD_FLOOR`] of its mean) is set to 0 on both, since
+//!    it would draw every vertex of the one shape to the other's mean. *Computed once* on the *feature level*
 //!    (the finest level whose source and target both have at most `feature_vertices` vertices,
 //!    default 20,000; the coarsest when none does) and carried to every other level by
 //!    closest-point barycentric interpolation. The paper computes them per mesh and does not say
@@ -401,8 +403,16 @@ pub fn transfer_detail(
         control,
     )
     .map_err(step("features", control))?;
-    let zs = ZScore::fit(&gs.values, DIM).apply(&gs.values);
-    let zt = ZScore::fit(&gt.values, DIM).apply(&gt.values);
+    let (mut fit_s, mut fit_t) = (ZScore::fit(&gs.values, DIM), ZScore::fit(&gt.values, DIM));
+    // A feature constant on one shape (z-scored to 0 there) would pull every vertex of that
+    // shape to the other shape's mean of it: dropped on both.
+    for j in 0..DIM {
+        if fit_s.inv_std[j] == 0.0 || fit_t.inv_std[j] == 0.0 {
+            fit_s.inv_std[j] = 0.0;
+            fit_t.inv_std[j] = 0.0;
+        }
+    }
+    let (zs, zt) = (fit_s.apply(&gs.values), fit_t.apply(&gt.values));
     let carry = |levels: &[super::hierarchy::Level], z: &[f64]| -> Vec<Vec<f64>> {
         (0..count)
             .map(|l| match l == feature_level {
