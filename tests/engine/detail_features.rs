@@ -5,7 +5,7 @@
 #[path = "detail_geometric.rs"]
 mod geometric;
 #[path = "detail_metric_features.rs"]
-mod metric_features;
+pub(crate) mod metric_features;
 #[path = "detail_patches.rs"]
 mod patches;
 #[path = "detail_synthesis.rs"]

@@ -20,7 +20,7 @@ use retex::engine::methods::detail::steerable::FEATURES;
 /// `steps` tiers (tread `run`, riser `rise`, both in the profile's (z, y) plane), extruded over
 /// `width` along x; spacing `h`. Returns the surface, whether each vertex is on a tread
 /// (strictly inside it, corners excluded), and its distance to the strip's border.
-pub(super) fn tiers(
+pub(crate) fn tiers(
     steps: usize,
     run: f64,
     rise: f64,

@@ -221,3 +221,61 @@ fn a_to_b_to_a_keeps_the_detail_where_it_was() {
         "B→A changed the detail's energy: {aba_up} vs {ab_up}"
     );
 }
+
+/// Detail std on the treads ÷ on the risers of a tiers surface (tread: y on an integer, z inside
+/// its tread; riser: z on an integer, y inside its riser).
+fn tread_ratio(s: &Surface, d: &[f64]) -> (f64, f64) {
+    let frac = |x: f64| x - x.floor();
+    let on = |x: f64| (x - x.round()).abs() < 0.01;
+    let inside = |x: f64| (0.15..0.85).contains(&frac(x));
+    let (mut tread, mut riser) = (Vec::new(), Vec::new());
+    for (p, v) in s.positions.iter().zip(d) {
+        let (y, z) = (p[1] as f64, p[2] as f64);
+        if on(y) && inside(z) && y > 0.5 {
+            tread.push(*v);
+        } else if on(z) && inside(y) {
+            riser.push(*v);
+        }
+    }
+    (std_dev(&tread), std_dev(&riser))
+}
+
+#[test]
+fn learned_and_equal_weights_both_put_tread_detail_on_treads_through_the_method() {
+    // The paper's Fig. 16a case shape (detail follows one feature, not position), run through
+    // the whole pipeline: source 5 tiers (width 2.5) with bumps on the treads, targets of 4 and
+    // 5 tiers (width 2). Measured: treads / risers std, learned 0.00143 / 0.00003 (4 tiers) and
+    // 0.00152 / 0.00000 (5); identity 0.00194 / 0.00000 and 0.00214 / 0.00000. Both metrics put
+    // the detail where the normals say, so this case does not show the learned metric's
+    // advantage (Fig. 16a): not reproduced, stated in the README.
+    use crate::detail_features::metric_features::tiers;
+    use retex::engine::methods::detail::metric::MetricKind;
+    let (base, on_tread, _) = tiers(5, 1.0, 1.0, 2.5, 0.05);
+    let mut detailed = base.clone();
+    for (p, t) in detailed.positions.iter_mut().zip(&on_tread) {
+        if *t {
+            let w = std::f64::consts::TAU / 0.25;
+            p[1] += (0.01 * (w * p[0] as f64).sin() * (w * p[2] as f64).sin()) as f32;
+        }
+    }
+    let control = Control::new();
+    for steps in [4usize, 5] {
+        let (target, _, _) = tiers(steps, 1.0, 1.0, 2.0, 0.05);
+        for kind in [MetricKind::Learned, MetricKind::Identity] {
+            let mut p = params(3, 0.05);
+            p.metric_kind = kind;
+            let out = transfer_detail(&detailed, Some(&base), &target, &p, &control).unwrap();
+            let (t, r) = tread_ratio(&out.surface, &out.displacement);
+            println!(
+                "{steps}-tier target, {kind:?}: treads {t:.5}, risers {r:.5} (metric diagonal by \
+                 group {:?})",
+                out.report.metric.diagonal_by_group
+            );
+            assert!(t > 0.001, "{steps} tiers, {kind:?}: treads {t}");
+            assert!(
+                t > 10.0 * r,
+                "{steps} tiers, {kind:?}: treads {t}, risers {r}"
+            );
+        }
+    }
+}
