@@ -26,8 +26,10 @@
 //! - [`outputs`]: the displacement and normal-map textures, TANGENT, the replaced UV-less
 //!   primitives and `displaced.glb`; [`params`] the `params` object.
 //!
-//! Not done (README "detail"): the texture-space refinement (§3.3.2), and a source whose
-//! displacement comes as a texture (`materials[i].extras.retex_displacement`).
+//! - [`source_texture`]: a source whose detail is a displacement texture
+//!   (`materials[i].extras.retex_displacement`, what `detail` writes); the source is then the base.
+//!
+//! Not done (README "detail"): the texture-space refinement (§3.3.2).
 
 pub mod blend;
 pub mod displacement;
@@ -40,6 +42,7 @@ mod patch_match;
 pub mod patches;
 pub mod pipeline;
 pub mod segmentation;
+pub mod source_texture;
 pub mod steerable;
 pub mod sweep;
 pub mod synthesis;
@@ -150,15 +153,42 @@ impl Method for Detail {
         }
         let settings = params.pipeline(detailed.diagonal() as f64, target.diagonal() as f64);
         let span = control.span(0.0, 0.9);
-        let result = transfer_detail(&detailed, base.as_ref(), &target, &settings, control)
-            .map_err(|e| match e {
-                PipelineError::Cancelled => MethodError::Cancelled,
-                PipelineError::Step { step, message } => MethodError::UnusableInput {
-                    field: None,
-                    kind: "unusable-mesh",
-                    message: format!("detail transfer failed at the {step} step: {message}"),
-                },
-            })?;
+        let mut warnings = Vec::new();
+        let maps = source_texture::read_maps(input.source()?)?;
+        let result = match maps {
+            None => transfer_detail(&detailed, base.as_ref(), &target, &settings, control),
+            Some(maps) => {
+                if base.is_some() {
+                    warnings.push(
+                        "the source carries a displacement texture (extras.retex_displacement): \
+                         it is the base, and source_base was ignored"
+                            .to_string(),
+                    );
+                }
+                let field = source_texture::TextureDetail::new(
+                    input.source()?,
+                    &detailed,
+                    maps,
+                    source_scale,
+                );
+                let sample = |level: &crate::engine::mesh::Surface| {
+                    use rayon::prelude::*;
+                    let v: Vec<Option<f64>> =
+                        level.positions.par_iter().map(|p| field.at(*p)).collect();
+                    let missing = v.iter().filter(|x| x.is_none()).count();
+                    Ok((v.into_iter().map(|x| x.unwrap_or(0.0)).collect(), missing))
+                };
+                pipeline::transfer_detail_with(&detailed, &sample, &target, &settings, control)
+            }
+        }
+        .map_err(|e| match e {
+            PipelineError::Cancelled => MethodError::Cancelled,
+            PipelineError::Step { step, message } => MethodError::UnusableInput {
+                field: None,
+                kind: "unusable-mesh",
+                message: format!("detail transfer failed at the {step} step: {message}"),
+            },
+        })?;
         drop(span);
         let _span = control.span(0.9, 1.0);
         let clock = std::time::Instant::now();
@@ -170,16 +200,17 @@ impl Method for Detail {
             input.constraints,
             control,
         )?;
+        warnings.extend(written.warnings);
         let report = DetailReport {
             pipeline: result.report,
             source_scale,
             outputs: written.summary,
             output_seconds: clock.elapsed().as_secs_f64(),
-            warnings: written.warnings.clone(),
+            warnings: warnings.clone(),
         };
         let mut out = MethodOutput::target(written.edits, &report);
         out.files = written.files;
-        out.warnings = written.warnings;
+        out.warnings = warnings;
         Ok(out)
     }
 }

@@ -8,7 +8,9 @@
 //! 2. **Hierarchy** (§3.1): the base and the target remeshed at shared absolute edge lengths,
 //!    halving per level ([`super::hierarchy::build_pair`]).
 //! 3. **Source displacement** per level: the signed distance along each level vertex's base
-//!    normal to the detailed surface ([`super::displacement::displacement`]).
+//!    normal to the detailed surface ([`super::displacement::displacement`]), or, for a source
+//!    whose detail is a texture, the texture at the closest source point
+//!    ([`transfer_detail_with`], [`super::source_texture`]).
 //! 4. **Geometric features** (§3.2.2), z-scored per shape; a column constant on either shape
 //!    (std below [`super::metric::RELATIVE_STD_FLOOR`] of its mean) is set to 0 on both, since
 //!    it would draw every vertex of the one shape to the other's mean. *Computed once* on the *feature level*
@@ -193,7 +195,8 @@ pub struct PipelineTimings {
 /// What the pipeline reports.
 #[derive(Clone, Debug, Serialize)]
 pub struct PipelineReport {
-    /// Whether the base was given (`source_base`) or derived.
+    /// Whether the base was given (`source_base`, or a source with a displacement texture) or
+    /// derived.
     pub base_given: bool,
     /// Per level, coarsest first.
     pub levels: Vec<LevelReport>,
@@ -339,17 +342,10 @@ pub fn transfer_detail(
     params: &PipelineParams,
     control: &Control,
 ) -> Result<DetailTransfer, PipelineError> {
-    let base_given = base.is_some();
-    let mut seconds = PipelineTimings::default();
-    let mut clock = Instant::now();
-    let mut lap = || {
-        let now = Instant::now();
-        let dt = (now - clock).as_secs_f64();
-        clock = now;
-        dt
-    };
+    let clock = Instant::now();
     let span = control.span(0.0, 0.05);
     let derived;
+    let base_given = base.is_some();
     let base = match base {
         Some(b) => b,
         None => {
@@ -358,8 +354,45 @@ pub fn transfer_detail(
             &derived
         }
     };
-    seconds.base = lap();
+    let base_seconds = clock.elapsed().as_secs_f64();
     drop(span);
+    let rays = |level: &Surface| -> Result<(Vec<f64>, usize), PipelineError> {
+        let d = displacement(level, detailed, &params.displacement)
+            .map_err(step("displacement", control))?;
+        Ok((d.values, d.missing))
+    };
+    let mut out = transfer_detail_with(base, &rays, target, params, control)?;
+    out.report.base_given = base_given;
+    out.report.seconds.base = base_seconds;
+    Ok(out)
+}
+
+/// The source displacement at a level's vertices: (values, vertices without one).
+pub type LevelDisplacement<'a> =
+    dyn Fn(&Surface) -> Result<(Vec<f64>, usize), PipelineError> + Sync + 'a;
+
+/// The pipeline from a base whose displacement at a level's vertices `displacement` gives
+/// (values, vertices without one): a source whose detail is a texture
+/// ([`super::source_texture`]).
+///
+/// # Errors
+/// As [`transfer_detail`].
+pub fn transfer_detail_with(
+    base: &Surface,
+    displacement: &LevelDisplacement<'_>,
+    target: &Surface,
+    params: &PipelineParams,
+    control: &Control,
+) -> Result<DetailTransfer, PipelineError> {
+    let base_given = true;
+    let mut seconds = PipelineTimings::default();
+    let mut clock = Instant::now();
+    let mut lap = || {
+        let now = Instant::now();
+        let dt = (now - clock).as_secs_f64();
+        clock = now;
+        dt
+    };
     let span = control.span(0.05, 0.3);
     let (src, tgt) =
         build_pair(base, target, &params.hierarchy, control).map_err(step("hierarchy", control))?;
@@ -370,17 +403,16 @@ pub fn transfer_detail(
     let mut disp = Vec::new();
     let mut levels = Vec::new();
     for (s, t) in src.iter().zip(&tgt) {
-        let d = displacement(&s.surface, detailed, &params.displacement)
-            .map_err(step("displacement", control))?;
+        let (values, missing) = displacement(&s.surface)?;
         levels.push(LevelReport {
             edge_length: s.edge_length,
             source_vertices: s.surface.vertex_count(),
             source_faces: s.surface.face_count(),
             target_vertices: t.surface.vertex_count(),
             target_faces: t.surface.face_count(),
-            displacement_missing: d.missing,
+            displacement_missing: missing,
         });
-        disp.push(d.values);
+        disp.push(values);
     }
     seconds.displacement = lap();
     drop(span);
