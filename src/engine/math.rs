@@ -1,4 +1,5 @@
-//! Small fixed-size vector helpers on `[T; 3]`, for `T` = `f32` or `f64` (see [`Real`]).
+//! Small fixed-size vector helpers on `[T; 3]`, for `T` = `f32` or `f64` (see [`Real`]), and
+//! [`Affine`], a node transform as a 3x4 map.
 //!
 //! Every helper spells its arithmetic out component by component, in one fixed order (`dot` is
 //! `a0·b0 + a1·b1 + a2·b2`, left to right), so a caller gets the same bits whichever module it is
@@ -156,5 +157,58 @@ mod tests {
             [3.0, 5.0, 7.0]
         );
         assert_eq!(sub([1.0f64, 2.0, 3.0], [1.0; 3]), [0.0, 1.0, 2.0]);
+    }
+}
+
+/// A 3x4 affine map stored row-major (`[linear | translation]`): a glTF node's local-to-world
+/// transform and its inverse (ElastiFace's write-back, `detail`'s outputs).
+#[derive(Clone, Copy, Debug)]
+pub struct Affine {
+    m: [[f64; 3]; 3],
+    t: [f64; 3],
+}
+
+impl Affine {
+    /// From a column-major 4x4 matrix (glTF `matrix`, [`crate::engine::asset::MeshInstance`]).
+    pub fn of_column_major(w: &[[f64; 4]; 4]) -> Self {
+        Self {
+            m: std::array::from_fn(|r| std::array::from_fn(|c| w[c][r])),
+            t: [w[3][0], w[3][1], w[3][2]],
+        }
+    }
+
+    /// The inverse map, `None` when the linear part is singular.
+    pub fn inverse(&self) -> Option<Self> {
+        let a = &self.m;
+        let det = a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1])
+            - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
+            + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0]);
+        if det.abs() < 1e-300 || !det.is_finite() {
+            return None;
+        }
+        let c = |r: usize, k: usize| {
+            let (r1, r2) = ((r + 1) % 3, (r + 2) % 3);
+            let (k1, k2) = ((k + 1) % 3, (k + 2) % 3);
+            a[r1][k1] * a[r2][k2] - a[r1][k2] * a[r2][k1]
+        };
+        let m: [[f64; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|k| c(k, r) / det));
+        let t = std::array::from_fn(|r| -(0..3).map(|k| m[r][k] * self.t[k]).sum::<f64>());
+        Some(Self { m, t })
+    }
+
+    /// The map applied to a point.
+    pub fn apply(&self, p: [f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|r| (0..3).map(|k| self.m[r][k] * p[k]).sum::<f64>() + self.t[r])
+    }
+
+    /// The linear part applied to a direction (a tangent).
+    pub fn linear(&self, v: [f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|r| (0..3).map(|k| self.m[r][k] * v[k]).sum::<f64>())
+    }
+
+    /// `Mᵀ v` for the linear part `M`: a world normal carried to local space by the
+    /// local-to-world map, or a local normal to world space by its inverse.
+    pub fn transpose_linear(&self, n: [f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|r| (0..3).map(|k| self.m[k][r] * n[k]).sum::<f64>())
     }
 }

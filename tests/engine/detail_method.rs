@@ -81,6 +81,25 @@ fn std(v: &[f64]) -> f64 {
     (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len().max(1) as f64).sqrt()
 }
 
+/// The bytes of `displaced.glb`.
+fn displaced_glb(out: &TransferOutput) -> &[u8] {
+    let a = out.artifacts.iter().find(|a| a.name == "displaced.glb");
+    &a.expect("displaced.glb").bytes
+}
+
+/// Std of the radial detail of `displaced.glb` over the upper (y/r ∈ [0.3, 0.95)) and lower
+/// (y/r ∈ [−0.95, −0.3)) bands.
+fn upper_lower_std(out: &TransferOutput) -> (f64, f64) {
+    let d = radial_detail(&load_bytes(displaced_glb(out), "displaced.glb"));
+    let part = |lo: f64, hi: f64| -> Vec<f64> {
+        d.iter()
+            .filter(|(y, _)| (lo..hi).contains(y))
+            .map(|x| x.1)
+            .collect()
+    };
+    (std(&part(0.3, 0.95)), std(&part(-0.95, -0.3)))
+}
+
 /// Radial deviation of the displaced target from the ellipsoid, per vertex, with its height.
 fn radial_detail(displaced: &Asset) -> Vec<(f64, f64)> {
     let p = &displaced.primitives[0];
@@ -118,22 +137,10 @@ fn detail_lands_on_the_upper_half_with_maps_tangents_and_a_displaced_glb() {
         .unwrap()
     );
     assert_validator_clean(&out.model, "detail_sphere.glb");
-    let displaced = out
-        .artifacts
-        .iter()
-        .find(|f| f.name == "displaced.glb")
-        .expect("displaced.glb");
-    assert_validator_clean(&displaced.bytes, "detail_sphere_displaced.glb");
+    assert_validator_clean(displaced_glb(&out), "detail_sphere_displaced.glb");
 
     // Detail on the upper half, not the lower (the source's bumps ramp in over y ∈ [0, 0.2]).
-    let d = radial_detail(&load_bytes(&displaced.bytes, "displaced.glb"));
-    let part = |lo: f64, hi: f64| -> Vec<f64> {
-        d.iter()
-            .filter(|(y, _)| (lo..hi).contains(y))
-            .map(|x| x.1)
-            .collect()
-    };
-    let (upper, lower) = (std(&part(0.3, 0.95)), std(&part(-0.95, -0.3)));
+    let (upper, lower) = upper_lower_std(&out);
     println!("detail std: upper {upper:.5}, lower {lower:.5} (source bumps: 0.01)");
     // Measured: upper 0.0053, lower 0.0004 (the synthesis keeps about half the source's
     // energy, as on the tiers; README "detail").
@@ -252,12 +259,7 @@ fn a_scan_onto_a_textured_head_gives_valid_maps_without_the_heads_own_features()
     let c = json!({"version": 1, "method": "detail", "output": {"texture_size": 1024}});
     let out = run(&source, None, &target, c);
     assert_validator_clean(&out.model, "detail_nefertiti_on_lps.glb");
-    let displaced = out
-        .artifacts
-        .iter()
-        .find(|a| a.name == "displaced.glb")
-        .unwrap();
-    assert_validator_clean(&displaced.bytes, "detail_nefertiti_on_lps_displaced.glb");
+    assert_validator_clean(displaced_glb(&out), "detail_nefertiti_on_lps_displaced.glb");
     let r = &out.report.method_report;
     let finest = r["levels"].as_array().unwrap().last().unwrap().clone();
     println!("finest level {finest}, seconds {}", r["seconds"]);
@@ -322,19 +324,7 @@ fn a_displacement_texture_source_is_read_as_base_plus_map_and_bad_ones_are_named
     println!("map source range {lo:.4} .. {hi:.4} (written: {first_range})");
     // The map's range as written (16-bit, read back bilinear at the level's vertices).
     assert!(hi - lo > 0.5 * 0.025, "{lo} .. {hi}");
-    let displaced = second
-        .artifacts
-        .iter()
-        .find(|a| a.name == "displaced.glb")
-        .unwrap();
-    let d = radial_detail(&load_bytes(&displaced.bytes, "displaced.glb"));
-    let part = |lo: f64, hi: f64| -> Vec<f64> {
-        d.iter()
-            .filter(|(y, _)| (lo..hi).contains(y))
-            .map(|x| x.1)
-            .collect()
-    };
-    let (upper, lower) = (std(&part(0.3, 0.95)), std(&part(-0.95, -0.3)));
+    let (upper, lower) = upper_lower_std(&second);
     println!("detail std from the map source: upper {upper:.5}, lower {lower:.5}");
     assert!(
         upper > 2.0 * lower && upper > 0.002,

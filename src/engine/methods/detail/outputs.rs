@@ -36,10 +36,10 @@ use crate::engine::asset::edits::{AttributeData, Edit, PrimitiveGeometry, Textur
 use crate::engine::asset::export::mesh_glb;
 use crate::engine::asset::Asset;
 use crate::engine::control::{Cancelled, Control};
-use crate::engine::math::{add, cross, dot, normalize, scale, sub, to_f64};
+use crate::engine::math::{add, cross, dot, normalize, scale, sub, to_f64, Affine};
 use crate::engine::mesh::Surface;
 use crate::engine::methods::output::{
-    write_field, FieldOutput, SurfaceField, SurfaceSample, TexelEncoding, TextureReport,
+    uv_set_of, write_field, FieldOutput, SurfaceField, SurfaceSample, TexelEncoding, TextureReport,
 };
 use crate::engine::methods::tangents::mikktspace_tangents_in_set;
 use crate::engine::methods::{MethodError, ResultFile};
@@ -229,19 +229,10 @@ impl SurfaceField for NormalField<'_> {
     }
 }
 
-/// The UV set the base-colour texture of primitive `p` is read through (0 without one).
-fn uv_set(asset: &Asset, p: usize) -> usize {
-    asset.primitives[p]
-        .material
-        .and_then(|m| asset.materials.get(m))
-        .and_then(|m| m.base_color_texture)
-        .map_or(0, |t| t.tex_coord as usize)
-}
-
 /// Whether primitive `p` is baked into (has the UV set) rather than replaced.
 fn has_uvs(asset: &Asset, constraints: &Constraints, p: usize) -> bool {
     !constraints.output.all_vertex_colors()
-        && asset.primitives[p].tex_coords.len() > uv_set(asset, p)
+        && asset.primitives[p].tex_coords.len() > uv_set_of(asset, p) as usize
 }
 
 /// Area-weighted unit normals of local positions (f32); +z on vertices that only touch
@@ -258,43 +249,19 @@ fn local_normals(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Vec<[f32; 3]
         .collect()
 }
 
-/// The linear part `m` (row-major) and translation of an instance's local-to-world transform.
-fn affine(asset: &Asset, p: usize) -> Option<([[f64; 3]; 3], [f64; 3])> {
+/// The local-to-world map of the first instance of primitive `p`'s mesh (the one the shared
+/// writer bakes).
+fn to_world(asset: &Asset, p: usize) -> Option<Affine> {
     let mesh = asset.primitives[p].mesh;
     let inst = asset.instances.iter().find(|i| i.mesh == mesh)?;
-    let w = &inst.world;
-    Some((
-        std::array::from_fn(|r| std::array::from_fn(|c| w[c][r])),
-        [w[3][0], w[3][1], w[3][2]],
-    ))
-}
-
-fn mat_vec(m: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
-    std::array::from_fn(|r| dot(m[r], v))
-}
-
-/// The inverse of a 3×3 matrix (`None` when singular).
-fn inverse3(m: &[[f64; 3]; 3]) -> Option<[[f64; 3]; 3]> {
-    let cols = [
-        [m[0][0], m[1][0], m[2][0]],
-        [m[0][1], m[1][1], m[2][1]],
-        [m[0][2], m[1][2], m[2][2]],
-    ];
-    let det = dot(cols[0], cross(cols[1], cols[2]));
-    if det.abs() < 1e-300 || !det.is_finite() {
-        return None;
-    }
-    // Rows of the inverse are the cross products of the columns over the determinant.
-    let r0 = scale(cross(cols[1], cols[2]), 1.0 / det);
-    let r1 = scale(cross(cols[2], cols[0]), 1.0 / det);
-    let r2 = scale(cross(cols[0], cols[1]), 1.0 / det);
-    Some([r0, r1, r2])
+    Some(Affine::of_column_major(&inst.world))
 }
 
 /// NORMAL (when missing) and TANGENT edits of a UV primitive, and its world-space frames.
 fn frames_of(asset: &Asset, p: usize, edits: &mut Vec<Edit>) -> Option<Frames> {
     let prim = &asset.primitives[p];
-    let (m, _) = affine(asset, p)?;
+    let to_world = to_world(asset, p)?;
+    let to_local = to_world.inverse()?;
     let normals = match &prim.normals {
         Some(n) => n.clone(),
         None => {
@@ -307,25 +274,28 @@ fn frames_of(asset: &Asset, p: usize, edits: &mut Vec<Edit>) -> Option<Frames> {
             n
         }
     };
-    let tangents =
-        mikktspace_tangents_in_set(asset, p, uv_set(asset, p), &prim.positions, &normals)?;
+    let tangents = mikktspace_tangents_in_set(
+        asset,
+        p,
+        uv_set_of(asset, p) as usize,
+        &prim.positions,
+        &normals,
+    )?;
     edits.push(Edit::SetAttribute {
         primitive: p,
         name: "TANGENT".into(),
         data: AttributeData::Vec4(tangents.clone()),
     });
     // Normals carry through the inverse transpose, tangents through the matrix (glTF §3.7.2.1).
-    let inv = inverse3(&m)?;
-    let inv_t: [[f64; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| inv[c][r]));
     Some(Frames {
         normals: normals
             .iter()
-            .map(|n| normalize(mat_vec(&inv_t, to_f64(*n))))
+            .map(|n| normalize(to_local.transpose_linear(to_f64(*n))))
             .collect(),
         tangents: tangents
             .iter()
             .map(|t| {
-                let w = normalize(mat_vec(&m, [t[0] as f64, t[1] as f64, t[2] as f64]));
+                let w = normalize(to_world.linear([t[0] as f64, t[1] as f64, t[2] as f64]));
                 [w[0], w[1], w[2], t[3] as f64]
             })
             .collect(),
@@ -359,10 +329,7 @@ fn replacements(
         .collect();
     let mut edits = Vec::new();
     for &p in prims {
-        let Some((m, t)) = affine(asset, p) else {
-            continue;
-        };
-        let Some(inv) = inverse3(&m) else {
+        let Some(to_local) = to_world(asset, p).and_then(|a| a.inverse()) else {
             continue;
         };
         let mut index = vec![u32::MAX; displaced.len()];
@@ -375,8 +342,7 @@ fn replacements(
                 let v = v as usize;
                 if index[v] == u32::MAX {
                     index[v] = g.positions.len() as u32;
-                    let w = to_f64(displaced[v]);
-                    let local = mat_vec(&inv, [w[0] - t[0], w[1] - t[1], w[2] - t[2]]);
+                    let local = to_local.apply(to_f64(displaced[v]));
                     g.positions.push(local.map(|x| x as f32));
                 }
                 index[v]

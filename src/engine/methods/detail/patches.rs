@@ -343,25 +343,8 @@ pub fn detail_features(
     params: &PatchParams,
     control: &Control,
 ) -> Result<Vec<f64>, PatchError> {
-    let sampler = Sampler::new(surface, displacement, params)?;
-    let pyramid = SteerablePyramid::new(params.size)?;
-    let nv = surface.vertex_count();
-    let stage = control.stage("detail features", nv as u64)?;
-    let mut out = vec![0.0; nv * FEATURES];
-    out.par_chunks_mut(FEATURES * 64)
-        .enumerate()
-        .try_for_each_init(
-            || sampler.scratch(),
-            |scratch, (chunk, block)| -> Result<(), PatchError> {
-                for (k, row) in block.chunks_mut(FEATURES).enumerate() {
-                    sampler.sample(chunk * 64 + k, scratch);
-                    row.copy_from_slice(&pyramid.band_deviations(&scratch.grid)?);
-                }
-                stage.tick((block.len() / FEATURES) as u64)?;
-                Ok(())
-            },
-        )?;
-    Ok(out)
+    let all: Vec<usize> = (0..surface.vertex_count()).collect();
+    detail_features_at(surface, displacement, &all, params, control)
 }
 
 /// The 17-D detail feature of `vertices` only (row `i` for `vertices[i]`, as

@@ -31,7 +31,6 @@
 use std::time::Instant;
 
 use faer::Mat;
-use rayon::prelude::*;
 use serde::Serialize;
 
 use super::displacement::{displacement, smooth_base, BaseParams, DisplacementParams};
@@ -44,10 +43,11 @@ use super::metric::{
 use super::patches::{detail_features_at, PatchParams};
 use super::steerable::FEATURES;
 use super::sweep::farthest_point_samples;
-use super::synthesis::{synthesize, LevelStats, SourceLevel, SynthesisParams, TargetLevel};
+use super::synthesis::{
+    interpolate_rows, synthesize, LevelStats, SourceLevel, SynthesisParams, TargetLevel,
+};
 use crate::engine::control::{Cancelled, Control};
 use crate::engine::mesh::{topology, Surface};
-use crate::engine::spatial::Bvh;
 
 /// Settings of [`transfer_detail`].
 #[derive(Clone, Debug)]
@@ -223,27 +223,6 @@ pub struct DetailTransfer {
     pub displacement: Vec<f64>,
     /// What happened.
     pub report: PipelineReport,
-}
-
-/// Barycentric interpolation of `width` values per vertex of `from` at the closest point of every
-/// vertex of `to`.
-pub fn interpolate_rows(from: &Surface, values: &[f64], width: usize, to: &Surface) -> Vec<f64> {
-    let bvh = Bvh::build(&from.positions, &from.faces);
-    let mut out = vec![0.0; to.vertex_count() * width];
-    out.par_chunks_mut(width.max(1))
-        .zip(&to.positions)
-        .for_each(|(row, p)| {
-            if let Some(hit) = bvh.closest_point(*p, f32::INFINITY) {
-                let f = from.faces[hit.face as usize];
-                for k in 0..3 {
-                    let (w, v) = (hit.bary[k] as f64, f[k] as usize);
-                    for (o, x) in row.iter_mut().zip(&values[v * width..(v + 1) * width]) {
-                        *o += w * x;
-                    }
-                }
-            }
-        });
-    out
 }
 
 fn group_mass(v: impl Fn(usize) -> f64) -> Vec<(String, f64)> {

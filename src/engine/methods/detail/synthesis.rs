@@ -251,19 +251,28 @@ fn validate(
 /// Barycentric interpolation of `values` (on `coarse`) at the closest point of every vertex of
 /// `fine`.
 pub fn upsample(coarse: &Surface, values: &[f64], fine: &Surface) -> Vec<f64> {
-    let bvh = Bvh::build(&coarse.positions, &coarse.faces);
-    fine.positions
-        .par_iter()
-        .map(|p| match bvh.closest_point(*p, f32::INFINITY) {
-            Some(hit) => {
-                let f = coarse.faces[hit.face as usize];
-                (0..3)
-                    .map(|k| hit.bary[k] as f64 * values[f[k] as usize])
-                    .sum()
+    interpolate_rows(coarse, values, 1, fine)
+}
+
+/// Barycentric interpolation of `width` values per vertex of `from` at the closest point of every
+/// vertex of `to`.
+pub fn interpolate_rows(from: &Surface, values: &[f64], width: usize, to: &Surface) -> Vec<f64> {
+    let bvh = Bvh::build(&from.positions, &from.faces);
+    let mut out = vec![0.0; to.vertex_count() * width];
+    out.par_chunks_mut(width.max(1))
+        .zip(&to.positions)
+        .for_each(|(row, p)| {
+            if let Some(hit) = bvh.closest_point(*p, f32::INFINITY) {
+                let f = from.faces[hit.face as usize];
+                for k in 0..3 {
+                    let (w, v) = (hit.bary[k] as f64, f[k] as usize);
+                    for (o, x) in row.iter_mut().zip(&values[v * width..(v + 1) * width]) {
+                        *o += w * x;
+                    }
+                }
             }
-            None => 0.0,
-        })
-        .collect()
+        });
+    out
 }
 
 /// Algorithm 1 (see the module doc). `r` is the transformed feature width (0 is allowed: every

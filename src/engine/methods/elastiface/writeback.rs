@@ -21,8 +21,8 @@
 use std::collections::HashMap;
 
 use crate::engine::asset::edits::{AttributeData, Edit, MorphDeltas};
-use crate::engine::asset::{Asset, MeshInstance, Primitive};
-use crate::engine::math::{cross, normalize, sub};
+use crate::engine::asset::{Asset, Primitive};
+use crate::engine::math::{cross, normalize, sub, Affine};
 use crate::engine::mesh::Surface;
 
 use super::MethodError;
@@ -68,50 +68,6 @@ pub fn check_single_instances(asset: &Asset) -> Result<(), MethodError> {
     Ok(())
 }
 
-/// A 3x4 affine map stored row-major (`[linear | translation]`).
-#[derive(Clone, Copy, Debug)]
-struct Affine {
-    m: [[f64; 3]; 3],
-    t: [f64; 3],
-}
-
-impl Affine {
-    fn of(inst: &MeshInstance) -> Self {
-        let w = &inst.world;
-        Self {
-            m: std::array::from_fn(|r| std::array::from_fn(|c| w[c][r])),
-            t: [w[3][0], w[3][1], w[3][2]],
-        }
-    }
-
-    fn inverse(&self) -> Option<Self> {
-        let a = &self.m;
-        let det = a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1])
-            - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
-            + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0]);
-        if det.abs() < 1e-300 || !det.is_finite() {
-            return None;
-        }
-        let c = |r: usize, k: usize| {
-            let (r1, r2) = ((r + 1) % 3, (r + 2) % 3);
-            let (k1, k2) = ((k + 1) % 3, (k + 2) % 3);
-            a[r1][k1] * a[r2][k2] - a[r1][k2] * a[r2][k1]
-        };
-        let m: [[f64; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|k| c(k, r) / det));
-        let t = std::array::from_fn(|r| -(0..3).map(|k| m[r][k] * self.t[k]).sum::<f64>());
-        Some(Self { m, t })
-    }
-
-    fn apply(&self, p: [f64; 3]) -> [f64; 3] {
-        std::array::from_fn(|r| (0..3).map(|k| self.m[r][k] * p[k]).sum::<f64>() + self.t[r])
-    }
-
-    /// `Mᵀ n`: a world normal carried to local space (for `M` local → world).
-    fn normal_to_local(&self, n: [f64; 3]) -> [f64; 3] {
-        std::array::from_fn(|r| (0..3).map(|k| self.m[k][r] * n[k]).sum::<f64>())
-    }
-}
-
 /// Area-weighted vertex normals of positions with faces.
 fn vertex_normals(x: &[[f64; 3]], faces: &[[u32; 3]]) -> Vec<[f64; 3]> {
     let mut n = vec![[0.0; 3]; x.len()];
@@ -155,7 +111,7 @@ pub fn geometry_edits(source: &Asset, place: &Placement<'_>) -> Result<Vec<Edit>
     let mut edits = Vec::new();
     let mut morphs: Vec<(usize, Vec<MorphDeltas>)> = Vec::new();
     for inst in &source.instances {
-        let to_world = Affine::of(inst);
+        let to_world = Affine::of_column_major(&inst.world);
         let to_local = to_world
             .inverse()
             .ok_or_else(|| MethodError::UnusableInput {
@@ -246,7 +202,7 @@ fn local_normals(
             match map[v] {
                 u32::MAX => old,
                 w => {
-                    let n = normalize(to_world.normal_to_local(normals[w as usize]));
+                    let n = normalize(to_world.transpose_linear(normals[w as usize]));
                     if n.iter().all(|c| c.is_finite()) && n != [0.0; 3] {
                         n.map(|c| c as f32)
                     } else {

@@ -223,3 +223,4 @@ pub fn write_field(
 
 pub(crate) use crate::engine::math::{cross, dot, normal_of, sub, to_f32};
 pub(crate) use atlas::replaceable as atlas_replaceable;
+pub(crate) use texels::uv_set_of;

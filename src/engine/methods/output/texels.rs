@@ -37,7 +37,7 @@ pub(super) struct Layout {
 }
 
 /// The base-color UV set of primitive `p` (0 without a texture).
-fn uv_set_of(asset: &Asset, p: usize) -> u32 {
+pub(crate) fn uv_set_of(asset: &Asset, p: usize) -> u32 {
     asset.primitives[p]
         .material
         .and_then(|m| asset.materials.get(m))
