@@ -24,8 +24,10 @@ const SOURCE: &str = "tgt_nefertiti_bust_odedstein/nefertiti-lowres_derived.glb"
 const TARGET: &str = "src_lee_perry_smith_head/LeePerrySmith.glb";
 
 /// (label, params, aim). The 400k case sets the finest edge (a fraction of the target's
-/// diagonal) so that the target's finest level has about 400k faces.
-fn cases() -> [(&'static str, serde_json::Value, &'static str); 2] {
+/// diagonal) so that the target's finest level has about 400k faces. The last two set a finest
+/// edge 2.2 times the scan's own, so that the texture-space refinement (§3.3.2) has a band to
+/// fill, without and with it.
+fn cases() -> [(&'static str, serde_json::Value, &'static str); 4] {
     [
         (
             "default finest level",
@@ -36,6 +38,16 @@ fn cases() -> [(&'static str, serde_json::Value, &'static str); 2] {
             "finest level ≈ 400k target faces",
             serde_json::json!({"finest_edge_length": 0.00222, "max_faces": 600000}),
             "400k faces under 5 min",
+        ),
+        (
+            "coarse finest level (0.012 × diagonal), refine off",
+            serde_json::json!({"finest_edge_length": 0.012, "refine": false}),
+            "—",
+        ),
+        (
+            "coarse finest level (0.012 × diagonal), refine on (§3.3.2)",
+            serde_json::json!({"finest_edge_length": 0.012}),
+            "—",
         ),
     ]
 }

@@ -44,7 +44,12 @@ fn sphere_case() -> (Vec<u8>, Vec<u8>, Vec<u8>) {
     (source, base, uv_mesh_glb(&target, None, 1.0))
 }
 
-fn run(source: &[u8], base: Option<&[u8]>, target: &[u8], c: serde_json::Value) -> TransferOutput {
+pub(crate) fn run(
+    source: &[u8],
+    base: Option<&[u8]>,
+    target: &[u8],
+    c: serde_json::Value,
+) -> TransferOutput {
     let c = Constraints::from_json(c.to_string().as_bytes()).unwrap();
     let blobs = |name: &str, bytes: &[u8]| {
         let mut b = BlobSet::new();
@@ -76,7 +81,7 @@ fn run(source: &[u8], base: Option<&[u8]>, target: &[u8], c: serde_json::Value) 
     transfer(&input, &Control::new()).unwrap()
 }
 
-fn std(v: &[f64]) -> f64 {
+pub(crate) fn std(v: &[f64]) -> f64 {
     let m = v.iter().sum::<f64>() / v.len().max(1) as f64;
     (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len().max(1) as f64).sqrt()
 }
@@ -188,7 +193,7 @@ fn detail_lands_on_the_upper_half_with_maps_tangents_and_a_displaced_glb() {
     );
 }
 
-fn extra_f64(out: &TransferOutput, key: &str) -> f64 {
+pub(crate) fn extra_f64(out: &TransferOutput, key: &str) -> f64 {
     let asset = load_bytes(&out.model, "out.glb");
     asset.json["materials"][0]["extras"]["retex_displacement"][key]
         .as_f64()
@@ -198,7 +203,7 @@ fn extra_f64(out: &TransferOutput, key: &str) -> f64 {
 /// RMS slope over the upper band (colatitude 0.15π-0.4π) decoded from the normal map (tangent
 /// of the tilt from the frame's normal) and from finite differences of the displacement texture
 /// (world units: the ellipsoid's parametric speeds), and the normal map's over the lower band.
-fn slopes(
+pub(crate) fn slopes(
     normal: &image::RgbImage,
     height: &image::ImageBuffer<image::Luma<u16>, Vec<u16>>,
     offset: f64,
@@ -295,6 +300,37 @@ fn a_scan_onto_a_textured_head_gives_valid_maps_without_the_heads_own_features()
     );
     assert!(mean > 1.0 && mean < 20.0, "mean tilt {mean}");
     assert!(steep < 0.01, "{steep}");
+    // The scan is no denser than the default finest level: nothing for §3.3.2 to add.
+    let refinement = &r["outputs"]["refinement"];
+    assert_eq!(refinement["applied"], false, "{refinement}");
+    assert!(
+        refinement["skipped_because"]
+            .as_str()
+            .is_some_and(|s| s.contains("per finest edge")),
+        "{refinement}"
+    );
+
+    // A finest level 2.2 times coarser than the scan: the refinement fills the band between.
+    let coarse = |refine: bool| {
+        json!({"version": 1, "method": "detail", "output": {"texture_size": 1024},
+            "params": {"finest_edge_length": 0.012, "refine": refine}})
+    };
+    let on = run(&source, None, &target, coarse(true));
+    let off = run(&source, None, &target, coarse(false));
+    assert_validator_clean(&on.model, "detail_nefertiti_on_lps_refined.glb");
+    let refinement = &on.report.method_report["outputs"]["refinement"];
+    println!("refinement {refinement}");
+    assert_eq!(refinement["applied"], true, "{refinement}");
+    let fine = |out: &TransferOutput| {
+        let (d, n) = crate::detail_refine::decoded_displacement(out);
+        let low = crate::detail_refine::gaussian_blur(&d, n, 3.0);
+        let hp: Vec<f64> = d.iter().zip(&low).map(|(a, b)| a - b).collect();
+        std(&hp)
+    };
+    let (fine_on, fine_off) = (fine(&on), fine(&off));
+    println!("fine band (σ = 3 texels) std: refined {fine_on:.5}, level only {fine_off:.5}");
+    // Measured: see the README ("texture-space refinement").
+    assert!(fine_on > 1.5 * fine_off, "{fine_on} vs {fine_off}");
 }
 
 #[test]

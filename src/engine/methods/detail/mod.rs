@@ -33,6 +33,7 @@
 
 pub mod blend;
 pub mod displacement;
+pub mod fine_detail;
 pub mod geometric_features;
 pub mod hierarchy;
 pub mod metric;
@@ -41,6 +42,7 @@ pub mod params;
 mod patch_match;
 pub mod patches;
 pub mod pipeline;
+pub mod refine;
 pub mod segmentation;
 pub mod source_texture;
 pub mod steerable;
@@ -80,6 +82,14 @@ pub struct DetailReport {
     pub output_seconds: f64,
     /// Things the user should know (lowercase sentences).
     pub warnings: Vec<String>,
+}
+
+/// Where the source's full-resolution detail is read.
+enum Fine<'a> {
+    /// Rays to the detailed mesh.
+    Rays,
+    /// The source's displacement texture.
+    Map(source_texture::TextureDetail<'a>),
 }
 
 /// The `detail` method (registry entry).
@@ -155,22 +165,26 @@ impl Method for Detail {
         let span = control.span(0.0, 0.9);
         let mut warnings = Vec::new();
         let maps = source_texture::read_maps(input.source()?)?;
-        let result = match maps {
-            None => transfer_detail(&detailed, base.as_ref(), &target, &settings, control),
-            Some(maps) => {
-                if base.is_some() {
-                    warnings.push(
-                        "the source carries a displacement texture (extras.retex_displacement): \
-                         it is the base, and source_base was ignored"
-                            .to_string(),
-                    );
-                }
-                let field = source_texture::TextureDetail::new(
-                    input.source()?,
-                    &detailed,
-                    maps,
-                    source_scale,
-                );
+        if maps.is_some() && base.is_some() {
+            warnings.push(
+                "the source carries a displacement texture (extras.retex_displacement): it is \
+                 the base, and source_base was ignored"
+                    .to_string(),
+            );
+        }
+        let source_asset = input.source()?;
+        let fine = match maps {
+            None => Fine::Rays,
+            Some(maps) => Fine::Map(source_texture::TextureDetail::new(
+                source_asset,
+                &detailed,
+                maps,
+                source_scale,
+            )),
+        };
+        let result = match &fine {
+            Fine::Rays => transfer_detail(&detailed, base.as_ref(), &target, &settings, control),
+            Fine::Map(field) => {
                 let sample = |level: &crate::engine::mesh::Surface| {
                     use rayon::prelude::*;
                     let v: Vec<Option<f64>> =
@@ -192,14 +206,53 @@ impl Method for Detail {
         drop(span);
         let _span = control.span(0.9, 1.0);
         let clock = std::time::Instant::now();
-        let written = outputs::write_outputs(
-            input.target,
-            &target,
-            &result.surface,
-            &result.displacement,
-            input.constraints,
-            control,
-        )?;
+        let refine_params = params.refine_params();
+        let refine_input = |fine| refine::RefineInput {
+            source: &result.source_surface,
+            source_displacement: &result.source_displacement,
+            target: &result.surface,
+            target_displacement: &result.displacement,
+            points: &result.source_points,
+            fine,
+        };
+        let written = match &fine {
+            Fine::Rays => {
+                let d_max = params.max_displacement as f64 * detailed.diagonal() as f64;
+                let edge = hierarchy::mean_edge_length(&result.surface);
+                let rays = fine_detail::RayDetail::new(&detailed, d_max, edge);
+                outputs::write_outputs(
+                    input.target,
+                    &target,
+                    &result.surface,
+                    &result.displacement,
+                    Some((refine_input(&rays), &refine_params)),
+                    input.constraints,
+                    control,
+                )?
+            }
+            Fine::Map(field) => {
+                // Differences one map texel wide (a quarter edge where that is unknown).
+                let texel = field.texel_size();
+                let step = match texel.is_finite() {
+                    true => texel,
+                    false => 0.25 * hierarchy::mean_edge_length(&result.surface),
+                };
+                let sampled = fine_detail::SampledDetail {
+                    value: |p| field.at(p),
+                    step,
+                    texel,
+                };
+                outputs::write_outputs(
+                    input.target,
+                    &target,
+                    &result.surface,
+                    &result.displacement,
+                    Some((refine_input(&sampled), &refine_params)),
+                    input.constraints,
+                    control,
+                )?
+            }
+        };
         warnings.extend(written.warnings);
         let report = DetailReport {
             pipeline: result.report,

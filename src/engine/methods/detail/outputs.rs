@@ -31,6 +31,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::displacement::area_weighted_normals;
+use super::refine::{RefineInput, RefineParams, RefineReport, Refinement};
 use crate::engine::asset::constraints::Constraints;
 use crate::engine::asset::edits::{AttributeData, Edit, PrimitiveGeometry, TextureSlot};
 use crate::engine::asset::export::mesh_glb;
@@ -63,6 +64,8 @@ pub struct OutputSummary {
     pub tangent_primitives: usize,
     /// Primitives replaced by their part of the displaced finest level (no UVs).
     pub replaced_primitives: usize,
+    /// The texture-space refinement (§3.3.2).
+    pub refinement: RefineReport,
     /// Vertices and faces of `displaced.glb`.
     pub displaced_vertices: usize,
     /// See `displaced_vertices`.
@@ -120,7 +123,7 @@ impl Finest<'_> {
 
 /// Per vertex, the area-weighted mean of the constant surface gradients of the piecewise-linear
 /// `values` over the incident faces.
-fn vertex_gradients(s: &Surface, values: &[f64]) -> Vec<[f64; 3]> {
+pub(super) fn vertex_gradients(s: &Surface, values: &[f64]) -> Vec<[f64; 3]> {
     let mut sum = vec![[0.0; 3]; s.vertex_count()];
     let mut area = vec![0.0; s.vertex_count()];
     for f in &s.faces {
@@ -157,8 +160,9 @@ fn vertex_gradients(s: &Surface, values: &[f64]) -> Vec<[f64; 3]> {
 impl Finest<'_> {
     /// The unit normal of the surface displaced by the displacement, at a point whose undisplaced
     /// unit normal is `n`: `n − ∇d` with the gradient's tangential part (first order in `d`).
-    fn displaced_normal(&self, f: usize, b: [f64; 3], n: [f64; 3]) -> [f64; 3] {
-        let g = self.gradient_at(f, b);
+    /// `extra` is added to the interpolated gradient (the refinement's residual).
+    fn displaced_normal(&self, f: usize, b: [f64; 3], n: [f64; 3], extra: [f64; 3]) -> [f64; 3] {
+        let g = add(self.gradient_at(f, b), extra);
         let tangential = sub(g, scale(n, dot(g, n)));
         normalize(sub(n, tangential))
     }
@@ -166,6 +170,7 @@ impl Finest<'_> {
 
 struct DisplacementField<'a> {
     finest: &'a Finest<'a>,
+    refinement: Option<&'a Refinement<'a>>,
     offset: f64,
     scale: f64,
 }
@@ -173,7 +178,10 @@ struct DisplacementField<'a> {
 impl SurfaceField for DisplacementField<'_> {
     fn sample(&self, at: &SurfaceSample, hint: Option<u32>, out: &mut [f32; 4]) -> Option<u32> {
         let (f, b) = self.finest.locate(at.position, hint)?;
-        let d = self.finest.displacement_at(f, b);
+        let mut d = self.finest.displacement_at(f, b);
+        if let Some((residual, _)) = self.refinement.and_then(|r| r.at(f, b)) {
+            d += residual;
+        }
         out[0] = ((d - self.offset) / self.scale) as f32;
         Some(f as u32)
     }
@@ -187,6 +195,7 @@ struct Frames {
 
 struct NormalField<'a> {
     finest: &'a Finest<'a>,
+    refinement: Option<&'a Refinement<'a>>,
     /// Per primitive: its frames when it receives the normal map.
     frames: Vec<Option<Frames>>,
     triangles: Vec<&'a [[u32; 3]]>,
@@ -220,13 +229,47 @@ impl SurfaceField for NormalField<'_> {
         let handedness = frames.tangents[tri[0] as usize][3];
         let b = scale(cross(n, t), handedness);
         let (f, bary) = self.finest.locate(at.position, hint)?;
-        let target = self.finest.displaced_normal(f, bary, normalize(n));
+        let extra = (self.refinement.and_then(|r| r.at(f, bary))).map_or([0.0; 3], |r| r.1);
+        let target = self.finest.displaced_normal(f, bary, normalize(n), extra);
         let c = normalize(solve3(t, b, n, target).unwrap_or([0.0, 0.0, 1.0]));
         for k in 0..3 {
             out[k] = (0.5 * c[k] + 0.5) as f32;
         }
         Some(f as u32)
     }
+}
+
+/// Texels of the output textures per `edge` (world units): `edge` over the mean world size of a
+/// texel on the UV-mapped primitives `uv_prims` (`√(area / (uv area · size²))`); 0 without UV
+/// area.
+fn texels_per_edge(
+    asset: &Asset,
+    surface: &Surface,
+    uv_prims: &[usize],
+    constraints: &Constraints,
+    edge: f64,
+) -> f64 {
+    let (mut area, mut uv_area) = (0.0, 0.0);
+    for f in 0..surface.face_count() {
+        let Some((p, t, _)) = surface.primitive_point(asset, f, [1.0 / 3.0; 3]) else {
+            continue;
+        };
+        if !uv_prims.contains(&p) {
+            continue;
+        }
+        let prim = &asset.primitives[p];
+        let Some(uvs) = prim.tex_coords.get(uv_set_of(asset, p) as usize) else {
+            continue;
+        };
+        let [a, b, c] = prim.triangles[t].map(|v| uvs[v as usize].map(|x| x as f64));
+        uv_area += 0.5 * ((b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1])).abs();
+        area += surface.face_area(f) as f64;
+    }
+    let size = constraints.output.texture_size as f64;
+    if uv_area <= 0.0 || area <= 0.0 {
+        return 0.0;
+    }
+    edge / (area / (uv_area * size * size)).sqrt()
 }
 
 /// Whether primitive `p` is baked into (has the UV set) rather than replaced.
@@ -371,9 +414,11 @@ pub fn write_outputs(
     input: &Surface,
     finest: &Surface,
     displacement: &[f64],
+    refine: Option<(RefineInput<'_>, &RefineParams)>,
     constraints: &Constraints,
     control: &Control,
 ) -> Result<Written, MethodError> {
+    let refine_enabled = refine.as_ref().is_some_and(|r| r.1.enabled);
     let normals = area_weighted_normals(finest);
     let displaced: Vec<[f32; 3]> = (finest.positions.iter().zip(&normals))
         .zip(displacement)
@@ -392,7 +437,7 @@ pub fn write_outputs(
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &d| {
             (a.min(d), b.max(d))
         });
-    let (offset, range) = if lo < hi {
+    let (mut offset, mut range) = if lo < hi {
         (lo, hi - lo)
     } else {
         (lo.min(0.0), 1.0)
@@ -438,8 +483,56 @@ pub fn write_outputs(
         frames[p] = frames_of(target, p, &mut edits);
     }
     summary.tangent_primitives = frames.iter().filter(|f| f.is_some()).count();
+    let edge = crate::engine::geometry::expmap::mean_edge_length(finest) as f64;
+    let texels = texels_per_edge(target, input, &uv_prims, constraints, edge);
+    let source_ratio = refine.as_ref().map_or(0.0, |r| edge / r.0.fine.sampling());
+    let min_ratio = refine.as_ref().map_or(2.0, |r| r.1.min_texels_per_edge);
+    let refinement = match refine {
+        Some((input, params))
+            if params.enabled
+                && texels >= params.min_texels_per_edge
+                && source_ratio >= params.min_texels_per_edge =>
+        {
+            control.stage("detail: refinement", 0)?;
+            Some(Refinement::new(input, edge, params))
+        }
+        _ => None,
+    };
+    summary.refinement = match &refinement {
+        Some(r) => RefineReport {
+            applied: true,
+            ..r.report.clone()
+        },
+        None => RefineReport {
+            skipped_because: Some(if !refine_enabled {
+                "params.refine is false".into()
+            } else if source_ratio < min_ratio {
+                format!(
+                    "the source's detail is sampled {source_ratio:.2} times per finest edge: it \
+                     has nothing finer than the finest level to add"
+                )
+            } else {
+                format!(
+                    "{texels:.2} texels per finest edge: the textures have no band above the \
+                     finest level's sampling"
+                )
+            }),
+            ..RefineReport::default()
+        },
+    };
+    summary.refinement.texels_per_edge = texels;
+    summary.refinement.source_samples_per_edge = source_ratio;
+    if let Some(r) = &refinement {
+        let [a, b] = r.sampled_range();
+        if a.is_finite() && b.is_finite() && b > a {
+            (offset, range) = (a.min(offset), (b.max(offset + range)) - a.min(offset));
+            summary.displacement_offset = offset;
+            summary.displacement_scale = range;
+        }
+    }
     let normal_field = NormalField {
         finest: &located,
+        refinement: refinement.as_ref(),
         frames,
         triangles: target
             .primitives
@@ -470,6 +563,7 @@ pub fn write_outputs(
     let _span = control.span(0.5, 1.0);
     let field = DisplacementField {
         finest: &located,
+        refinement: refinement.as_ref(),
         offset,
         scale: range,
     };
@@ -508,6 +602,9 @@ pub fn write_outputs(
         .filter(|w| !w.contains("have no UVs")),
     );
     warnings.dedup();
+    if let Some(r) = &refinement {
+        [summary.refinement.points, summary.refinement.reads] = r.counts();
+    }
     summary.normal_textures = normal_report.textures;
     summary.displacement_textures = disp_report.textures;
     Ok(Written {

@@ -13,6 +13,7 @@ use super::hierarchy::HierarchyParams;
 use super::metric::{MetricKind, MetricParams};
 use super::patches::PatchParams;
 use super::pipeline::PipelineParams;
+use super::refine::RefineParams;
 use super::synthesis::SynthesisParams;
 use crate::engine::asset::constraints::{Constraints, ConstraintsError};
 use crate::engine::methods::shared_params::SharedParams;
@@ -81,6 +82,14 @@ pub struct DetailParams {
     /// are in the same units (a scan in mm onto a head in m would not). Default true; false
     /// keeps the source's detail at its own world size.
     pub match_scale: bool,
+    /// Texture-space high-frequency refinement (§3.3.2, [`super::refine`]) of targets with UVs.
+    /// Default true (the paper's step); skipped by itself when the textures have fewer than 2
+    /// texels per finest edge.
+    pub refine: bool,
+    /// Largest translation of a vertex's source point in the refinement, in finest edges.
+    /// Default 0.25 (README sweep).
+    #[schemars(range(min = 0.0, max = 2.0))]
+    pub refine_max_translation: f64,
     /// Shared: [`SharedParams::weld_tolerance`].
     pub weld_tolerance: f32,
 }
@@ -103,6 +112,8 @@ impl Default for DetailParams {
             candidates: synthesis.candidates,
             source_samples: synthesis.source_samples,
             match_scale: true,
+            refine: true,
+            refine_max_translation: RefineParams::default().max_translation,
             weld_tolerance: SharedParams::default().weld_tolerance,
         }
     }
@@ -115,6 +126,15 @@ impl DetailParams {
     /// A [`ConstraintsError`] naming `params.<field>`.
     pub fn from_constraints(c: &Constraints) -> Result<Self, ConstraintsError> {
         crate::engine::methods::params::parse(c)
+    }
+
+    /// The refinement's settings.
+    pub fn refine_params(&self) -> RefineParams {
+        RefineParams {
+            enabled: self.refine,
+            max_translation: self.refine_max_translation,
+            ..RefineParams::default()
+        }
     }
 
     /// The pipeline's settings for a source of diagonal `source_diagonal` and a target of

@@ -152,10 +152,65 @@ fn cell_vertices(surface: &Surface, s: &Scratch, out: &mut Vec<u32>) {
     }));
 }
 
-/// One source patch: per cell the vertex and the (normalised) displacement, NaN where invalid.
+/// One source patch: per cell the vertex, the (normalised) displacement and the surface point,
+/// NaN where invalid.
 pub(super) struct SourcePatch {
     vertex: Vec<u32>,
     disp: Vec<f32>,
+    point: Vec<[f32; 3]>,
+}
+
+/// The strongest contribution a target vertex received in a pass: the patch and the (shifted)
+/// grid position in it that its value was read at, and its `w_loc`.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Record {
+    weight: f32,
+    patch: u32,
+    position: [f32; 2],
+}
+
+impl Default for Record {
+    fn default() -> Self {
+        Record {
+            weight: 0.0,
+            patch: NONE,
+            position: [0.0; 2],
+        }
+    }
+}
+
+impl Record {
+    /// Whether the vertex received a contribution.
+    pub(super) fn is_set(&self) -> bool {
+        self.patch != NONE
+    }
+}
+
+/// The source surface point a [`Record`] read its value at: the bilinear interpolation of the
+/// patch's cell points (valid cells only); `None` for an unset record or no valid cell.
+pub(super) fn recorded_point(patches: &[SourcePatch], r: &Record, side: usize) -> Option<[f64; 3]> {
+    let p = patches.get(r.patch as usize)?;
+    let (x, y) = (r.position[0] as f64, r.position[1] as f64);
+    let (x0, y0) = (x.floor().max(0.0) as usize, y.floor().max(0.0) as usize);
+    let (x1, y1) = ((x0 + 1).min(side - 1), (y0 + 1).min(side - 1));
+    let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+    let mut sum = [0.0; 3];
+    let mut wsum = 0.0;
+    for (cx, cy, w) in [
+        (x0, y0, (1.0 - fx) * (1.0 - fy)),
+        (x1, y0, fx * (1.0 - fy)),
+        (x0, y1, (1.0 - fx) * fy),
+        (x1, y1, fx * fy),
+    ] {
+        let q = p.point.get(cy * side + cx)?;
+        if w > 0.0 && !q[0].is_nan() {
+            for k in 0..3 {
+                sum[k] += w * q[k] as f64;
+            }
+            wsum += w;
+        }
+    }
+    (wsum > 1e-9).then(|| sum.map(|s| s / wsum))
 }
 
 /// Samples the source patches (side `side`) around `samples`, parallel.
@@ -185,10 +240,17 @@ pub(super) fn source_patches(
                             .sum::<f64>() as f32
                     })
                     .collect();
+                let point = (scratch.face.iter().zip(&scratch.bary))
+                    .map(|(&f, w)| match f {
+                        NONE => [f32::NAN; 3],
+                        _ => charts.surface.face_point(f as usize, *w),
+                    })
+                    .collect();
                 stage.tick(1)?;
                 Ok(SourcePatch {
                     vertex: cells.clone(),
                     disp,
+                    point,
                 })
             },
         )
@@ -366,7 +428,14 @@ impl Level<'_> {
     }
 
     /// Blends source patch `p` shifted by `sh` into the chart in `s` (see the module doc).
-    fn blend_patch(&self, s: &Scratch, p: &SourcePatch, sh: (isize, isize), blend: &mut Blend) {
+    fn blend_patch(
+        &self,
+        s: &Scratch,
+        (index, sh): (usize, (isize, isize)),
+        blend: &mut Blend,
+        mut record: Option<&mut [Record]>,
+    ) {
+        let p = &self.patches[index];
         let g = self.side();
         let centre = (g as f64 - 1.0) / 2.0;
         let half = self.n as f64 / 2.0;
@@ -395,18 +464,30 @@ impl Level<'_> {
             }
             if wsum > 1e-9 {
                 let dist = (q[0] * q[0] + q[1] * q[1]).sqrt();
-                blend.add(v as usize, sum / wsum, location_weight(dist, self.n));
+                let w = location_weight(dist, self.n);
+                blend.add(v as usize, sum / wsum, w);
+                if let Some(r) = record.as_deref_mut().and_then(|r| r.get_mut(v as usize)) {
+                    if w as f32 > r.weight {
+                        *r = Record {
+                            weight: w as f32,
+                            patch: index as u32,
+                            position: [x as f32, y as f32],
+                        };
+                    }
+                }
             }
         }
     }
 
-    /// One SYNTHESIZE-LEVEL pass over `order`.
+    /// One SYNTHESIZE-LEVEL pass over `order`; `record` (one per target vertex), when given,
+    /// receives each vertex's strongest contribution.
     pub(super) fn pass(
         &self,
         order: &[usize],
         blend: &mut Blend,
         rng: &mut u64,
         stage: &StageProgress<'_>,
+        mut record: Option<&mut [Record]>,
     ) -> Result<PassStats, Cancelled> {
         let mut stats = PassStats::default();
         let mut scratch = self.target.scratch();
@@ -428,8 +509,8 @@ impl Level<'_> {
                     Some(((splitmix(rng) % self.patches.len() as u64) as usize, (0, 0)))
                 }
             };
-            if let Some((p, sh)) = chosen {
-                self.blend_patch(&scratch, &self.patches[p], sh, blend);
+            if let Some(choice) = chosen {
+                self.blend_patch(&scratch, choice, blend, record.as_deref_mut());
                 stats.patches += 1;
             }
         }

@@ -221,6 +221,13 @@ pub struct DetailTransfer {
     pub surface: Surface,
     /// Displacement per vertex of `surface` along its area-weighted normal (world units).
     pub displacement: Vec<f64>,
+    /// The finest source level.
+    pub source_surface: Surface,
+    /// The source displacement per vertex of `source_surface`.
+    pub source_displacement: Vec<f64>,
+    /// Per vertex of `surface`, the point of `source_surface` its value came from
+    /// ([`super::synthesis::Synthesis::finest_source_points`]).
+    pub source_points: Vec<Option<[f64; 3]>>,
     /// What happened.
     pub report: PipelineReport,
 }
@@ -481,18 +488,18 @@ pub fn transfer_detail_with(
         target_range: range(displacement.iter().copied()),
         seconds,
     };
-    let surface = match tgt.into_iter().next_back() {
-        Some(l) => l.surface,
-        None => {
-            return Err(PipelineError::Step {
-                step: "hierarchy",
-                message: "no levels".into(),
-            })
-        }
+    let no_levels = || PipelineError::Step {
+        step: "hierarchy",
+        message: "no levels".into(),
     };
+    let surface = tgt.into_iter().next_back().ok_or_else(no_levels)?.surface;
+    let source_surface = src.into_iter().next_back().ok_or_else(no_levels)?.surface;
     Ok(DetailTransfer {
         surface,
         displacement,
+        source_surface,
+        source_displacement: disp.pop().unwrap_or_default(),
+        source_points: out.finest_source_points,
         report,
     })
 }

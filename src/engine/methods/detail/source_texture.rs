@@ -155,6 +155,37 @@ impl<'a> TextureDetail<'a> {
         }
     }
 
+    /// The mean world size of a map texel over the faces whose material has a map
+    /// (`√(area / (uv area · width · height))`); infinite without one.
+    pub fn texel_size(&self) -> f64 {
+        let (mut area, mut texels) = (0.0, 0.0);
+        for f in 0..self.surface.face_count() {
+            let Some((prim, tri, _)) = self.surface.primitive_point(self.asset, f, [1.0 / 3.0; 3])
+            else {
+                continue;
+            };
+            let primitive = &self.asset.primitives[prim];
+            let Some(map) = primitive
+                .material
+                .and_then(|m| self.maps.get(m))
+                .and_then(|m| m.as_ref())
+            else {
+                continue;
+            };
+            let Some(uvs) = primitive.tex_coords.get(map.tex_coord) else {
+                continue;
+            };
+            let [a, b, c] = primitive.triangles[tri].map(|v| uvs[v as usize].map(|x| x as f64));
+            let uv = 0.5 * ((b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1])).abs();
+            texels += uv * (map.width * map.height) as f64;
+            area += self.surface.face_area(f) as f64;
+        }
+        match texels > 0.0 {
+            true => (area / texels).sqrt(),
+            false => f64::INFINITY,
+        }
+    }
+
     /// The displacement at the source point closest to `p`, if its material has a map.
     pub fn at(&self, p: [f32; 3]) -> Option<f64> {
         let hit = self.bvh.closest_point(p, f32::INFINITY)?;

@@ -46,7 +46,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::blend::Blend;
-use super::patch_match::{source_patches, Charts, Level};
+use super::patch_match::{recorded_point, source_patches, Charts, Level, Record};
 use super::sweep::{farthest_point_samples, good_counts, good_threshold, sweep_order};
 use crate::engine::control::{Cancelled, Control};
 use crate::engine::geometry::expmap::mean_edge_length;
@@ -190,6 +190,11 @@ pub struct Synthesis {
     pub weight: Vec<Vec<f64>>,
     /// Per-level statistics.
     pub levels: Vec<LevelStats>,
+    /// Per vertex of the finest target level, the point of the finest source level its value was
+    /// read from by its strongest contribution (reverse pass, else forward pass; `None` where no
+    /// patch reached it): the correspondence the texture-space refinement
+    /// ([`super::refine`]) starts from.
+    pub finest_source_points: Vec<Option<[f64; 3]>>,
 }
 
 fn validate(
@@ -297,6 +302,7 @@ pub fn synthesize(
         displacement: Vec::new(),
         weight: Vec::new(),
         levels: Vec::new(),
+        finest_source_points: Vec::new(),
     };
     let mut previous: Option<Vec<f64>> = None;
     let mut n = params.initial_patch_size;
@@ -355,13 +361,26 @@ pub fn synthesize(
             feature_grid: params.feature_grid,
             choice: params.choice,
         };
+        let finest = l + 1 == count;
+        let mut records = vec![vec![Record::default(); if finest { nt } else { 0 }]; 2];
+        let [rec_forward, rec_reverse] = &mut records[..] else {
+            unreachable!("two record arrays")
+        };
         let mut blend = Blend::new(base, confidence);
-        let forward = level.pass(&order, &mut blend, &mut rng, &stage)?;
+        let forward = level.pass(&order, &mut blend, &mut rng, &stage, record(rec_forward))?;
         let t_forward = lap();
         let reversed: Vec<usize> = order.iter().rev().copied().collect();
         let mut blend = Blend::new(blend.values(), params.previous_pass_confidence);
-        let reverse = level.pass(&reversed, &mut blend, &mut rng, &stage)?;
+        let reverse = level.pass(&reversed, &mut blend, &mut rng, &stage, record(rec_reverse))?;
         let t_reverse = lap();
+        if finest {
+            out.finest_source_points = (rec_reverse.iter().zip(rec_forward.iter()))
+                .map(|(r, f)| {
+                    let chosen = if r.is_set() { r } else { f };
+                    recorded_point(&patches, chosen, side)
+                })
+                .collect();
+        }
         let values = blend.values();
         out.displacement
             .push(values.iter().map(|d| lo + d * range).collect());
@@ -379,4 +398,9 @@ pub fn synthesize(
         n = 2 * n + 1;
     }
     Ok(out)
+}
+
+/// The record array of a pass, `None` when it is not recorded (empty).
+fn record(r: &mut [Record]) -> Option<&mut [Record]> {
+    (!r.is_empty()).then_some(r)
 }
