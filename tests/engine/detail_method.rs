@@ -27,21 +27,39 @@ fn bumps(p: [f64; 3]) -> f64 {
 
 /// (detailed source, its base, the target) as GLBs.
 fn sphere_case() -> (Vec<u8>, Vec<u8>, Vec<u8>) {
+    sphere_pair(32, bumps)
+}
+
+/// A unit icosphere of `frequency` displaced radially by `field` (the detailed source), the
+/// plain icosphere of frequency 32 (its base) and the UV ellipsoid (1.1, 1, 0.9) (the target),
+/// as GLBs.
+pub(crate) fn sphere_pair(
+    frequency: usize,
+    field: fn([f64; 3]) -> f64,
+) -> (Vec<u8>, Vec<u8>, Vec<u8>) {
     let base = jittered_sphere(1.0, 32, 0.0);
-    let detailed: Vec<[f32; 3]> = base
+    let dense = jittered_sphere(1.0, frequency, 0.0);
+    let detailed: Vec<[f32; 3]> = dense
         .positions
         .iter()
         .map(|p| {
             let q = p.map(f64::from);
             let r = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
             let n = q.map(|x| x / r);
-            n.map(|x| (x * (1.0 + bumps(n))) as f32)
+            n.map(|x| (x * (1.0 + field(n))) as f32)
         })
         .collect();
-    let source = mesh_glb(&detailed, &base.faces).unwrap();
+    let source = mesh_glb(&detailed, &dense.faces).unwrap();
     let base = mesh_glb(&base.positions, &base.faces).unwrap();
     let target = uv_sphere(128, 64, |p| [1.1 * p[0], p[1], 0.9 * p[2]]);
     (source, base, uv_mesh_glb(&target, None, 1.0))
+}
+
+/// The sphere case's constraints: 3 levels, finest edge 0.012 × the diagonal, 512² maps.
+fn sphere_constraints() -> serde_json::Value {
+    json!({"version": 1, "method": "detail",
+        "params": {"levels": 3, "finest_edge_length": 0.012},
+        "output": {"texture_size": 512}})
 }
 
 pub(crate) fn run(
@@ -121,9 +139,7 @@ fn radial_detail(displaced: &Asset) -> Vec<(f64, f64)> {
 #[test]
 fn detail_lands_on_the_upper_half_with_maps_tangents_and_a_displaced_glb() {
     let (source, base, target) = sphere_case();
-    let c = json!({"version": 1, "method": "detail",
-        "params": {"levels": 3, "finest_edge_length": 0.012},
-        "output": {"texture_size": 512}});
+    let c = sphere_constraints();
     let t0 = std::time::Instant::now();
     let out = run(&source, Some(&base), &target, c);
     println!("detail transfer: {:.2} s", t0.elapsed().as_secs_f64());
@@ -338,9 +354,7 @@ fn a_displacement_texture_source_is_read_as_base_plus_map_and_bad_ones_are_named
     // detail's own output (the ellipsoid with its 16-bit map in extras.retex_displacement) is
     // a source: its mesh is the base, the map the detail. Onto the plain ellipsoid again.
     let (source, base, target) = sphere_case();
-    let c = json!({"version": 1, "method": "detail",
-        "params": {"levels": 3, "finest_edge_length": 0.012},
-        "output": {"texture_size": 512}});
+    let c = sphere_constraints();
     let first = run(&source, Some(&base), &target, c.clone());
     // Equal weights: this checks the map's reading. With the learned metric this self-transfer
     // loses the detail (upper 0.0002, lower 0.0002: the metric puts 0.41 / 0.39 of its diagonal

@@ -6,14 +6,11 @@
 //! (wavelength 0.1) on its upper half, its plain sphere as the base, onto the UV ellipsoid of
 //! [`super::detail_method`], with a finest level (edge ≈ 0.06) too coarse for the ripples.
 
-use retex::engine::asset::export::mesh_glb;
 use retex::engine::pipeline::TransferOutput;
 use serde_json::json;
 
 use crate::common::assert_validator_clean;
-use crate::common_geometry::jittered_sphere;
-use crate::detail_method::{extra_f64, run, slopes, std};
-use crate::elastiface_common::{mesh_glb as uv_mesh_glb, uv_sphere};
+use crate::detail_method::{extra_f64, run, slopes, sphere_pair, std};
 
 /// Coarse bumps (wavelength 0.5, amplitude 0.02) and fine ripples (wavelength 0.1, amplitude
 /// 0.01) on the upper half of a unit sphere (same ramp as [`bumps`]).
@@ -92,25 +89,7 @@ fn texture_space_refinement_restores_detail_finer_than_the_finest_level() {
     // A dense source (edges ≈ 0.012) whose ripples (wavelength 0.1) no synthesis level can
     // carry: the finest edge is 0.02 × the target's diagonal ≈ 0.06, above the ripples' Nyquist
     // length 0.05. Only §3.3.2's texture-space step can put them into the 512² maps.
-    let base = jittered_sphere(1.0, 32, 0.0);
-    let dense = jittered_sphere(1.0, 96, 0.0);
-    let detailed: Vec<[f32; 3]> = dense
-        .positions
-        .iter()
-        .map(|p| {
-            let q = p.map(f64::from);
-            let r = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
-            let n = q.map(|x| x / r);
-            n.map(|x| (x * (1.0 + two_scale_bumps(n))) as f32)
-        })
-        .collect();
-    let source = mesh_glb(&detailed, &dense.faces).unwrap();
-    let base = mesh_glb(&base.positions, &base.faces).unwrap();
-    let target = uv_mesh_glb(
-        &uv_sphere(128, 64, |p| [1.1 * p[0], p[1], 0.9 * p[2]]),
-        None,
-        1.0,
-    );
+    let (source, base, target) = sphere_pair(96, two_scale_bumps);
     let c = |refine: bool| {
         json!({"version": 1, "method": "detail",
             "params": {"levels": 3, "finest_edge_length": 0.02, "refine": refine},
@@ -206,25 +185,7 @@ fn refined_ripples_land_on_the_crests_they_belong_to() {
     // them through the synthesis' correspondence, so on the target they must again sit on the
     // crests of the synthesised coarse bumps: the fine band's local energy correlates with the
     // coarse displacement. A placement unrelated to the synthesis has no reason to.
-    let base = jittered_sphere(1.0, 32, 0.0);
-    let dense = jittered_sphere(1.0, 96, 0.0);
-    let detailed: Vec<[f32; 3]> = dense
-        .positions
-        .iter()
-        .map(|p| {
-            let q = p.map(f64::from);
-            let r = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
-            let n = q.map(|x| x / r);
-            n.map(|x| (x * (1.0 + crest_ripples(n))) as f32)
-        })
-        .collect();
-    let source = mesh_glb(&detailed, &dense.faces).unwrap();
-    let base = mesh_glb(&base.positions, &base.faces).unwrap();
-    let target = uv_mesh_glb(
-        &uv_sphere(128, 64, |p| [1.1 * p[0], p[1], 0.9 * p[2]]),
-        None,
-        1.0,
-    );
+    let (source, base, target) = sphere_pair(96, crest_ripples);
     let sweep: Vec<f64> = match std::env::var("RETEX_REFINE_SWEEP") {
         Ok(_) => vec![0.0, 0.25, 0.5, 1.0],
         Err(_) => vec![0.25],

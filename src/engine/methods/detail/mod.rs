@@ -215,20 +215,13 @@ impl Method for Detail {
             points: &result.source_points,
             fine,
         };
-        let written = match &fine {
+        let (rays, sampled);
+        let fine_source: &dyn refine::FineDetail = match &fine {
             Fine::Rays => {
                 let d_max = params.max_displacement as f64 * detailed.diagonal() as f64;
                 let edge = hierarchy::mean_edge_length(&result.surface);
-                let rays = fine_detail::RayDetail::new(&detailed, d_max, edge);
-                outputs::write_outputs(
-                    input.target,
-                    &target,
-                    &result.surface,
-                    &result.displacement,
-                    Some((refine_input(&rays), &refine_params)),
-                    input.constraints,
-                    control,
-                )?
+                rays = fine_detail::RayDetail::new(&detailed, d_max, edge);
+                &rays
             }
             Fine::Map(field) => {
                 // Differences one map texel wide (a quarter edge where that is unknown).
@@ -237,22 +230,23 @@ impl Method for Detail {
                     true => texel,
                     false => 0.25 * hierarchy::mean_edge_length(&result.surface),
                 };
-                let sampled = fine_detail::SampledDetail {
+                sampled = fine_detail::SampledDetail {
                     value: |p| field.at(p),
                     step,
                     texel,
                 };
-                outputs::write_outputs(
-                    input.target,
-                    &target,
-                    &result.surface,
-                    &result.displacement,
-                    Some((refine_input(&sampled), &refine_params)),
-                    input.constraints,
-                    control,
-                )?
+                &sampled
             }
         };
+        let written = outputs::write_outputs(
+            input.target,
+            &target,
+            &result.surface,
+            &result.displacement,
+            Some((refine_input(fine_source), &refine_params)),
+            input.constraints,
+            control,
+        )?;
         warnings.extend(written.warnings);
         let report = DetailReport {
             pipeline: result.report,
