@@ -4,7 +4,8 @@
 //! next to the peers' whole-process figures that issue 15 gives (Blender 4.5 Smart UV Project +
 //! bake; PyMeshLab Voronoi atlas + transfer). The atlas time is the sum of the transfer's
 //! `atlas_*` stages (weld, charts, packing and the split primitives), measured by `Control`;
-//! the whole time is the wall clock around `transfer`. Prints Markdown for the README.
+//! `atlas_pack` is that stage alone (orientation, packing, layout); the whole time is the wall
+//! clock around `transfer`. Prints Markdown for the README.
 
 use std::path::Path;
 use std::time::Instant;
@@ -46,9 +47,23 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// The constraints of every transfer: the defaults, with `output.atlas_parameterization` from
+/// `$RETEX_ATLAS_PARAMETERIZATION` (`lscm` or `arap`) when set, to compare the two.
+fn constraints() -> Constraints {
+    let mut c = Constraints::default();
+    if let Ok(p) = std::env::var("RETEX_ATLAS_PARAMETERIZATION") {
+        c.output.atlas_parameterization = match p.as_str() {
+            "arap" => retex::engine::asset::constraints::AtlasParameterization::Arap,
+            _ => retex::engine::asset::constraints::AtlasParameterization::Lscm,
+        };
+    }
+    c
+}
+
 /// Medians of one target over `runs` transfers.
 struct Row {
     atlas_ms: f64,
+    pack_ms: f64,
     bake_ms: f64,
     whole_ms: f64,
     figures: String,
@@ -60,6 +75,7 @@ fn measure(
     runs: usize,
 ) -> Result<Row, String> {
     let (mut atlas, mut bake, mut whole) = (Vec::new(), Vec::new(), Vec::new());
+    let mut pack = Vec::new();
     let mut figures = String::new();
     for _ in 0..runs {
         let input = TransferInput::pair(
@@ -71,7 +87,7 @@ fn measure(
                 main: &target.0,
                 blobs: &target.1,
             },
-            Constraints::default(),
+            constraints(),
         );
         let t0 = Instant::now();
         let out = transfer(&input, &Control::new()).map_err(|e| e.to_string())?;
@@ -83,6 +99,7 @@ fn measure(
                 .sum()
         };
         atlas.push(stages("atlas_"));
+        pack.push(stages("atlas_pack"));
         bake.push(stages("bake") + stages("pad"));
         let a = &out.report.method_report["atlas"];
         let vertices = &out.report.method_report["target_surface"]["vertices"];
@@ -90,9 +107,10 @@ fn measure(
             format!("{vertices} | no atlas")
         } else {
             format!(
-                "{vertices} | {} | {:.3} | {:.2} | {:.4}",
+                "{vertices} | {} | {:.3} (L∞ {:.2}) | {:.2} | {:.4}",
                 a["chart_count"],
                 a["l2_stretch"].as_f64().unwrap_or(f64::NAN),
+                a["linf_stretch"].as_f64().unwrap_or(f64::NAN),
                 a["packing_efficiency"].as_f64().unwrap_or(f64::NAN),
                 // World length × texels per unit / texels per texture width.
                 a["seam_length"].as_f64().unwrap_or(f64::NAN)
@@ -103,6 +121,7 @@ fn measure(
     }
     Ok(Row {
         atlas_ms: median(atlas),
+        pack_ms: median(pack),
         bake_ms: median(bake),
         whole_ms: median(whole),
         figures,
@@ -118,8 +137,8 @@ pub fn run(assets: &Path, runs: usize) -> Result<(), String> {
     };
     let source = read(SOURCE)?;
     println!("Spot → target, `project` with default constraints (output.uv = auto, 2048², padding 4), median of {runs}:\n");
-    println!("| target | atlas | bake + pad | whole transfer | Blender 4.5 bake | PyMeshLab atlas + transfer | vertices | charts | L2 | packing | seams (texture widths) |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("| target | atlas | atlas_pack | bake + pad | whole transfer | Blender 4.5 bake | PyMeshLab atlas + transfer | vertices | charts | L2 | packing | seams (texture widths) |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     for (frequency, peers) in [32usize, 63, 127].into_iter().zip(PEERS) {
         let sphere = icosphere(1.0, frequency);
         let glb = mesh_glb(&sphere.positions, &sphere.faces).map_err(|e| e.to_string())?;
@@ -128,16 +147,16 @@ pub fn run(assets: &Path, runs: usize) -> Result<(), String> {
         let target = ("sphere.glb".to_string(), blobs);
         let row = measure(&source, &target, runs)?;
         println!(
-            "| sphere | {:.0} ms | {:.0} ms | {:.0} ms | {} | {} | {} |",
-            row.atlas_ms, row.bake_ms, row.whole_ms, peers.0, peers.1, row.figures
+            "| sphere | {:.0} ms | {:.0} ms | {:.0} ms | {:.0} ms | {} | {} | {} |",
+            row.atlas_ms, row.pack_ms, row.bake_ms, row.whole_ms, peers.0, peers.1, row.figures
         );
     }
     for (label, rel) in TARGETS {
         let target = read(rel)?;
         let row = measure(&source, &target, runs)?;
         println!(
-            "| {label} | {:.0} ms | {:.0} ms | {:.0} ms | | | {} |",
-            row.atlas_ms, row.bake_ms, row.whole_ms, row.figures
+            "| {label} | {:.0} ms | {:.0} ms | {:.0} ms | {:.0} ms | | | {} |",
+            row.atlas_ms, row.pack_ms, row.bake_ms, row.whole_ms, row.figures
         );
     }
     Ok(())

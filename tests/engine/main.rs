@@ -67,4 +67,5 @@ mod shared_pairs;
 mod spectra;
 mod surface_bvh_properties;
 mod texture_properties;
+mod uv_arap;
 mod uv_atlas;

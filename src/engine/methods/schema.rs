@@ -128,7 +128,12 @@ pub fn constraints_schema_for(registry: &Registry) -> Value {
                     "uv": {
                         "enum": ["auto", "keep", "vertex_colors"],
                         "default": output["uv"],
-                        "description": "auto: keep the target's UVs, generate an atlas (TEXCOORD_0, vertices split at chart seams, baked base-colour texture) for primitives without them; keep: primitives without UVs get COLOR_0 on a refined copy; vertex_colors: COLOR_0 on every primitive, no textures.",
+                        "description": "auto: keep the target's UVs, generate an atlas (TEXCOORD_0, vertices split at chart seams, the baked base-colour texture, or detail's normal map, TANGENT and displacement texture) for primitives without them; keep: primitives without UVs get COLOR_0 on a refined copy (detail: the displaced finest level); vertex_colors: COLOR_0 on every primitive, no textures.",
+                    },
+                    "atlas_parameterization": {
+                        "enum": ["lscm", "arap"],
+                        "default": output["atlas_parameterization"],
+                        "description": "How a generated atlas (uv: auto) flattens each chart. lscm: least-squares conformal maps (angles kept, areas may vary); arap: LSCM refined by as-rigid-as-possible iterations (Liu et al. 2008), kept per chart when neither its L2 nor its L-infinity stretch is above LSCM's and no triangle flips: less area distortion, sometimes fewer charts, for 25-40 % more atlas time and a less tightly packed texture.",
                     },
                     "format": {"enum": ["glb", "gltf"], "default": output["format"]},
                 },

@@ -1,5 +1,6 @@
 //! Chart merging (issue 15): after the growth and the splits, neighbouring charts are merged
-//! while the union is still a disc that LSCM flattens within the stretch bound.
+//! while the union is still a disc that the atlas's parameterisation (LSCM, optionally refined
+//! by ARAP) flattens within the stretch bound.
 //!
 //! Lévy et al. 2002 §4 grow charts from seeds and then merge charts whose boundary between them
 //! is long relative to their size; Sander et al. 2001 merge greedily while the merged chart's
@@ -32,7 +33,7 @@ use std::collections::HashSet;
 
 use rayon::prelude::*;
 
-use super::atlas::{flatten, Flat};
+use super::atlas::{flatten, AtlasParams, Flat};
 use super::charts::Adjacency;
 use crate::engine::control::{Cancelled, Control};
 use crate::engine::mesh::Surface;
@@ -98,7 +99,7 @@ pub(super) fn merge_charts(
     surface: &Surface,
     adj: &Adjacency,
     mut flats: Vec<Flat>,
-    max_stretch: f64,
+    params: &AtlasParams,
     control: &Control,
 ) -> Result<Vec<Flat>, Cancelled> {
     let mut failed: HashSet<(ChartKey, ChartKey)> = HashSet::new();
@@ -140,7 +141,7 @@ pub(super) fn merge_charts(
                 let mut faces = flats[a].faces.clone();
                 faces.extend_from_slice(&flats[b].faces);
                 faces.sort_unstable();
-                flatten(surface, &faces, max_stretch)
+                flatten(surface, &faces, params)
             })
             .collect();
         let mut removed = vec![false; flats.len()];

@@ -1,25 +1,45 @@
-//! Chart packing: skyline packing with 90° rotation and a gutter, the scale (texels per world
-//! unit, the same for every chart, so texel density is uniform up to each chart's own stretch)
-//! chosen by bisection as the largest at which every chart fits in the square texture.
+//! Chart packing: the scale (texels per world unit, the same for every chart, so texel density is
+//! uniform up to each chart's own stretch) is the largest at which every chart fits in the square
+//! texture with a gutter, found by bisection; [`pack`] runs two packers and keeps the one with
+//! the larger scale: the skyline packer of chart bounding boxes here, then the outline packer of
+//! [`super::bitmap_pack`], whose scale search starts from the skyline's.
 //!
 //! Lévy et al. 2002 §5 pack by a "Tetris" descent of the charts' horizon. Here each chart's
 //! bounding box (charts are turned to their principal axes first) descends onto the skyline of
 //! the boxes placed so far: the boxes go tallest first, each to the position, over every
 //! skyline segment and both orientations, where its top is lowest (then leftmost). Unlike the
-//! paper's horizon this keeps no holes under overhangs, and it packs boxes, not chart outlines.
-//! It replaced a shelf packer (boxes left to right on shelves as tall as their first box), whose
-//! efficiency the README compares. Written here: no crate packs rectangles with this scale
-//! search. Constants: 48 bisection steps (the scale's relative resolution is then far below one
-//! texel); charts keep one texel of slack on each axis beyond their exact extent so that
-//! rounding never makes two charts' texels touch.
+//! paper's horizon this keeps no holes under overhangs, and it packs boxes, not chart outlines
+//! (which [`super::bitmap_pack`] does). It replaced a shelf packer (boxes left to right on
+//! shelves as tall as their first box), whose efficiency the README compares. Written here: no
+//! crate packs rectangles with this scale search. Constants: 48 bisection steps (the scale's
+//! relative resolution is then far below one texel); charts keep one texel of slack on each axis
+//! beyond their exact extent so that rounding never makes two charts' texels touch.
 
-/// Where a chart goes.
-#[derive(Clone, Copy, Debug, PartialEq)]
+use super::bitmap_pack::pack_outlines;
+pub use super::bitmap_pack::Outline;
+
+/// Where a chart goes: texel = `offset` + R^`quarter` (scale · p) for a chart point `p` (world
+/// units), R the counter-clockwise quarter turn (turns keep the triangles' orientation).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Placement {
-    /// Lower-left corner of the chart's (rotated) bounding box, in texels.
+    /// Texel position of the chart's origin after the turn.
     pub offset: [f64; 2],
-    /// Whether the chart is turned by 90°.
-    pub rotated: bool,
+    /// Counter-clockwise quarter turns, 0-3.
+    pub quarter: u8,
+}
+
+impl Placement {
+    /// The texel position of chart point `p` at `scale` texels per unit.
+    pub fn apply(&self, p: [f64; 2], scale: f64) -> [f64; 2] {
+        let [x, y] = [p[0] * scale, p[1] * scale];
+        let q = match self.quarter % 4 {
+            0 => [x, y],
+            1 => [-y, x],
+            2 => [-x, -y],
+            _ => [y, -x],
+        };
+        [self.offset[0] + q[0], self.offset[1] + q[1]]
+    }
 }
 
 /// Bisection steps over the scale.
@@ -108,13 +128,7 @@ fn raise(skyline: &mut Vec<Segment>, x: f64, w: f64, top: f64) {
 /// `gutter` texels between boxes, each at the lowest place the skyline offers for it in either
 /// orientation; `None` if they do not fit.
 fn skyline(sizes: &[[f64; 2]], scale: f64, width: f64, gutter: f64) -> Option<Vec<Placement>> {
-    let mut out = vec![
-        Placement {
-            offset: [0.0; 2],
-            rotated: false
-        };
-        sizes.len()
-    ];
+    let mut out = vec![Placement::default(); sizes.len()];
     let mut line = vec![Segment { x: 0.0, y: 0.0 }];
     for (i, [w, h], rotated) in boxes(sizes, scale, gutter) {
         let flat = lowest(&line, w, h, width).map(|p| (p, w, h, rotated));
@@ -129,20 +143,39 @@ fn skyline(sizes: &[[f64; 2]], scale: f64, width: f64, gutter: f64) -> Option<Ve
             }
             (a, b) => a.or(b)?,
         };
+        // A 90° turn (x, y) → (h − y, x) of the chart's box [0, w] × [0, h].
+        let lift = if turned { sizes[i][1] * scale } else { 0.0 };
         out[i] = Placement {
-            offset: [x + 0.5 * gutter + 0.5, y + 0.5 * gutter + 0.5],
-            rotated: turned,
+            offset: [x + 0.5 * gutter + 0.5 + lift, y + 0.5 * gutter + 0.5],
+            quarter: u8::from(turned),
         };
         raise(&mut line, x, bw, top);
     }
     Some(out)
 }
 
-/// Packs charts of bounding-box `sizes` (world units) into a `texture_size`² texture with
-/// `gutter` texels between charts. Returns the scale (texels per world unit) and the
-/// placements, or `None` when even a vanishing scale does not fit (too many charts for the
-/// texture and gutter).
-pub fn pack(sizes: &[[f64; 2]], texture_size: u32, gutter: u32) -> Option<(f64, Vec<Placement>)> {
+/// Packs charts (outlines with their boxes at the origin) into a `texture_size`² texture with
+/// `gutter` texels between charts: the skyline packing of their boxes or the bitmap packing of
+/// their outlines, whichever reaches the larger scale (see the module doc). Returns the scale
+/// (texels per world unit) and the placements, or `None` when even a vanishing scale does not
+/// fit (too many charts for the texture and gutter).
+pub fn pack(charts: &[Outline], texture_size: u32, gutter: u32) -> Option<(f64, Vec<Placement>)> {
+    let sizes: Vec<[f64; 2]> = charts.iter().map(|c| c.size).collect();
+    let boxes = pack_boxes(&sizes, texture_size, gutter)?;
+    match pack_outlines(charts, texture_size, gutter, boxes.0) {
+        Some(outlines) if outlines.0 > boxes.0 => Some(outlines),
+        _ => Some(boxes),
+    }
+}
+
+/// Skyline-packs charts of bounding-box `sizes` (world units) into a `texture_size`² texture
+/// with `gutter` texels between charts. Returns the scale (texels per world unit) and the
+/// placements, or `None` when even a vanishing scale does not fit.
+pub fn pack_boxes(
+    sizes: &[[f64; 2]],
+    texture_size: u32,
+    gutter: u32,
+) -> Option<(f64, Vec<Placement>)> {
     let width = f64::from(texture_size);
     let g = f64::from(gutter);
     let area: f64 = sizes
@@ -193,19 +226,22 @@ mod tests {
                 })
                 .collect();
             let (width, gutter) = (1024u32, 2u32);
-            let (scale, places) = pack(&sizes, width, gutter).expect("fits");
+            let (scale, places) = pack_boxes(&sizes, width, gutter).expect("fits");
             let g = f64::from(gutter);
             let rects: Vec<[f64; 4]> = sizes
                 .iter()
                 .zip(&places)
                 .map(|(s, p)| {
-                    let (w, h) = if p.rotated {
+                    let (w, h) = if p.quarter == 1 {
                         (s[1], s[0])
                     } else {
                         (s[0], s[1])
                     };
                     let (w, h) = ((w * scale).ceil() + 1.0, (h * scale).ceil() + 1.0);
-                    let (x, y) = (p.offset[0] - 0.5, p.offset[1] - 0.5);
+                    // The box's lower-left corner: the turned chart's, less half a texel.
+                    let a = p.apply([0.0, 0.0], scale);
+                    let b = p.apply(*s, scale);
+                    let (x, y) = (a[0].min(b[0]) - 0.5, a[1].min(b[1]) - 0.5);
                     [x, y, x + w, y + h]
                 })
                 .collect();
