@@ -26,6 +26,7 @@ mod correlation_real;
 mod correlation_sampling;
 mod correlation_sweep;
 mod correlation_synthesis;
+mod detail_atlas;
 mod detail_displacement;
 mod detail_features;
 mod detail_method;

@@ -17,6 +17,16 @@ use super::edits::{
 use super::export::{Builder, ExportError};
 use super::model::Asset;
 
+/// Removes every texture reference (keys ending in `Texture`, at any depth) from a material
+/// copied for primitives whose texture coordinates were replaced: they pointed into UV sets
+/// that no longer exist.
+fn strip_textures(material: &mut Value) {
+    if let Some(obj) = material.as_object_mut() {
+        obj.retain(|k, _| !k.ends_with("Texture"));
+        obj.values_mut().for_each(strip_textures);
+    }
+}
+
 /// Applies one edit.
 pub(super) fn apply(asset: &Asset, b: &mut Builder, edit: &Edit) -> Result<(), ExportError> {
     match edit {
@@ -171,8 +181,17 @@ fn set_texture(
             m
         }
         None => {
+            let mut new = json!({});
+            if let Some(&p) = primitives.first() {
+                let old = primitive_json(asset, &mut b.json, p)?["material"].as_u64();
+                if let Some(old) = old {
+                    new = b.json["materials"][old as usize].clone();
+                    strip_textures(&mut new);
+                }
+            }
+            new["name"] = json!(image.name);
             let materials = b.array("materials");
-            materials.push(json!({"name": image.name}));
+            materials.push(new);
             let m = materials.len() - 1;
             for &p in primitives {
                 primitive_json(asset, &mut b.json, p)?["material"] = json!(m);

@@ -224,7 +224,9 @@ pub enum Edit {
     /// A new texture in a material slot.
     SetTexture {
         /// glTF material index; `None` creates a new material (named after the image) and
-        /// assigns it to `primitives`.
+        /// assigns it to `primitives`: a copy of the first primitive's material when it has one
+        /// (its factors, alpha mode, double-sidedness and extensions kept, its texture
+        /// references dropped: they read UV sets the new layout replaced), else an empty one.
         material: Option<usize>,
         /// The slot.
         slot: TextureSlot,

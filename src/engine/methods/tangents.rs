@@ -8,6 +8,14 @@
 //! algorithm is the `bevy_mikktspace` crate (a safe Rust port of Mikkelsen's reference code,
 //! byte-identical to it), so a viewer that regenerates tangents itself gets the same frames.
 //!
+//! The texture coordinates are given to MikkTSpace as `(u, 1 − v)`: glTF's `v` grows downwards
+//! in the image, while the normal texture's green channel points up (§3.9.3), and MikkTSpace's
+//! bitangent follows `+v`. With glTF's `v` as is, `w` comes out negated: a normal map read with
+//! those frames has its green channel flipped (KhronosGroup/glTF-Sample-Models#174; Blender's
+//! exporter and the Khronos sample viewer use the flipped `v`). Invisible on one regular UV
+//! layout with symmetric detail, it showed as shading steps across every seam of a generated
+//! atlas, whose charts are turned differently.
+//!
 //! Inputs are the primitive's own (mesh-local) vertices: the fitted POSITION, the recomputed
 //! NORMAL (unit), and the UV set `normalTexture.texCoord` of its material (0 without one). A
 //! vertex MikkTSpace leaves without a frame (only on degenerate faces with no neighbour) gets
@@ -45,7 +53,10 @@ impl Geometry for Frames<'_> {
     }
 
     fn tex_coord(&self, face: usize, vert: usize) -> [f32; 2] {
-        self.uvs[self.triangles[face][vert] as usize]
+        // glTF's v grows downwards in the image while a normal map's green channel points up
+        // (§3.9.3): MikkTSpace, whose bitangent follows +v, is given 1 − v.
+        let [u, v] = self.uvs[self.triangles[face][vert] as usize];
+        [u, 1.0 - v]
     }
 
     fn set_tangent(&mut self, tangent_space: Option<TangentSpace>, face: usize, vert: usize) {
@@ -109,8 +120,25 @@ pub fn mikktspace_tangents_in_set(
 ) -> Option<Vec<[f32; 4]>> {
     let prim = &asset.primitives[p];
     let uvs = prim.tex_coords.get(set)?;
+    Some(mikktspace_tangents_of(
+        &prim.triangles,
+        positions,
+        normals,
+        uvs,
+    ))
+}
+
+/// MikkTSpace tangents (xyz unit, w = ±1) of the triangles `triangles` over per-vertex
+/// `positions`, unit `normals` and `uvs` (a primitive being built, e.g. one whose vertices an
+/// atlas split at its seams).
+pub fn mikktspace_tangents_of(
+    triangles: &[[u32; 3]],
+    positions: &[[f32; 3]],
+    normals: &[[f32; 3]],
+    uvs: &[[f32; 2]],
+) -> Vec<[f32; 4]> {
     let mut frames = Frames {
-        triangles: &prim.triangles,
+        triangles,
         positions,
         normals,
         uvs,
@@ -118,18 +146,53 @@ pub fn mikktspace_tangents_in_set(
     };
     // The crate's error type has no variants: generation cannot fail.
     let _ = generate_tangents(&mut frames);
-    Some(
-        frames
-            .out
-            .iter()
-            .zip(normals)
-            .map(|(t, n)| match t {
-                Some(t) if is_unit(&t[..3]) => *t,
-                _ => {
-                    let o = any_orthogonal(*n);
-                    [o[0], o[1], o[2], 1.0]
-                }
-            })
-            .collect(),
-    )
+    frames
+        .out
+        .iter()
+        .zip(normals)
+        .map(|(t, n)| match t {
+            Some(t) if is_unit(&t[..3]) => *t,
+            _ => {
+                let o = any_orthogonal(*n);
+                [o[0], o[1], o[2], 1.0]
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A flat grid in the xy plane facing +z, with u along +x and glTF's v along −y (the image
+    /// drawn upright on it): the tangent is +x and the bitangent `cross(n, t) · w` points up the
+    /// image, along +y, the direction the normal map's green channel stands for (glTF §3.9.3).
+    /// With glTF's v given to MikkTSpace as is, it pointed down.
+    #[test]
+    fn bitangent_points_up_the_image_as_the_green_channel() {
+        let n = 4;
+        let mut positions = Vec::new();
+        let mut uvs = Vec::new();
+        for j in 0..=n {
+            for i in 0..=n {
+                let (x, y) = (i as f32 / n as f32, j as f32 / n as f32);
+                positions.push([x, y, 0.0]);
+                uvs.push([x, 1.0 - y]);
+            }
+        }
+        let mut triangles = Vec::new();
+        for j in 0..n {
+            for i in 0..n {
+                let a = (j * (n + 1) + i) as u32;
+                let (b, c, d) = (a + 1, a + n as u32 + 1, a + n as u32 + 2);
+                triangles.extend([[a, b, d], [a, d, c]]);
+            }
+        }
+        let normals = vec![[0.0, 0.0, 1.0]; positions.len()];
+        for t in mikktspace_tangents_of(&triangles, &positions, &normals, &uvs) {
+            assert!((t[0] - 1.0).abs() < 1e-5, "tangent {t:?}");
+            // cross((0, 0, 1), (1, 0, 0)) = (0, 1, 0): w = +1 gives +y.
+            assert_eq!(t[3], 1.0, "bitangent points down the image: {t:?}");
+        }
+    }
 }

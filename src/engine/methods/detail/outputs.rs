@@ -18,10 +18,18 @@
 //!   the displaced finest level's own normals instead (what a high-to-low baker does) was tried
 //!   first: it also baked the gap between the remeshed level and the target (ears, nostrils and
 //!   lips of a head showed up as detail).
-//! - **Primitives without UVs** (not skinned or morphed): replaced by their part of the displaced
-//!   finest level (each finest face goes to the primitive of the input face closest to its
-//!   centroid), in the primitive's local space (inverse of its first instance's transform), with
-//!   vertex normals. So for a target without UVs the output is the displaced refined mesh.
+//! - **Primitives without UVs** (not skinned or morphed), with `output.uv = "auto"` (the
+//!   default; issue 15): one atlas is generated for all of them
+//!   ([`crate::engine::methods::output::build_atlas`]), and both maps are baked through it, so
+//!   they share one layout. Each primitive is replaced by its atlas copy (vertices split where
+//!   charts meet, TEXCOORD_0), with NORMAL (the input's, or area-weighted, copied to the split
+//!   vertices) and MikkTSpace TANGENT in the new UVs; the maps go into a new material, a copy of
+//!   the primitive's own without its texture references.
+//! - **Primitives without UVs** with `output.uv = "keep"`, or when no atlas could be made:
+//!   replaced by their part of the displaced finest level (each finest face goes to the
+//!   primitive of the input face closest to its centroid), in the primitive's local space
+//!   (inverse of its first instance's transform), with vertex normals. So for such a target the
+//!   output is the displaced refined mesh.
 //! - Always the result file `displaced.glb`: the finest level displaced, as one mesh.
 //!
 //! Written by hand: the bake goes through the shared writer ([`crate::engine::methods::output`]);
@@ -32,7 +40,7 @@ use serde::Serialize;
 
 use super::displacement::area_weighted_normals;
 use super::refine::{RefineInput, RefineParams, RefineReport, Refinement};
-use crate::engine::asset::constraints::Constraints;
+use crate::engine::asset::constraints::{Constraints, UvMode};
 use crate::engine::asset::edits::{AttributeData, Edit, PrimitiveGeometry, TextureSlot};
 use crate::engine::asset::export::mesh_glb;
 use crate::engine::asset::Asset;
@@ -40,9 +48,10 @@ use crate::engine::control::{Cancelled, Control};
 use crate::engine::math::{add, cross, dot, normalize, scale, sub, to_f64, Affine};
 use crate::engine::mesh::Surface;
 use crate::engine::methods::output::{
-    uv_set_of, write_field, FieldOutput, SurfaceField, SurfaceSample, TexelEncoding, TextureReport,
+    build_atlas, uv_set_of, write_field, write_field_in_atlas, AtlasLayout, FieldOutput,
+    SurfaceField, SurfaceSample, TexelEncoding, TextureReport,
 };
-use crate::engine::methods::tangents::mikktspace_tangents_in_set;
+use crate::engine::methods::tangents::{mikktspace_tangents_in_set, mikktspace_tangents_of};
 use crate::engine::methods::{MethodError, ResultFile};
 use crate::engine::spatial::Bvh;
 
@@ -62,8 +71,15 @@ pub struct OutputSummary {
     pub normal_textures: Vec<TextureReport>,
     /// Primitives that received TANGENT.
     pub tangent_primitives: usize,
-    /// Primitives replaced by their part of the displaced finest level (no UVs).
+    /// Primitives replaced by their part of the displaced finest level (no UVs, `output.uv`
+    /// `keep`, or no atlas could be made).
     pub replaced_primitives: usize,
+    /// Primitives without UVs replaced by an atlas copy (`output.uv = "auto"`) that carries
+    /// the maps.
+    pub atlas_primitives: usize,
+    /// The generated atlas's quality figures, when one was made.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub atlas: Option<crate::engine::uv::AtlasReport>,
     /// The texture-space refinement (§3.3.2).
     pub refinement: RefineReport,
     /// Vertices and faces of `displaced.glb`.
@@ -187,10 +203,12 @@ impl SurfaceField for DisplacementField<'_> {
     }
 }
 
-/// World-space vertex frames of one primitive: unit normal and tangent with handedness.
+/// World-space vertex frames of one primitive as written (its own, or its atlas copy's):
+/// unit normal and tangent with handedness, and the triangles over those vertices.
 struct Frames {
     normals: Vec<[f64; 3]>,
     tangents: Vec<[f64; 4]>,
+    triangles: Vec<[u32; 3]>,
 }
 
 struct NormalField<'a> {
@@ -198,7 +216,6 @@ struct NormalField<'a> {
     refinement: Option<&'a Refinement<'a>>,
     /// Per primitive: its frames when it receives the normal map.
     frames: Vec<Option<Frames>>,
-    triangles: Vec<&'a [[u32; 3]]>,
 }
 
 /// Solves `[t b n] c = x` (columns) by Cramer's rule; `None` when singular.
@@ -217,7 +234,7 @@ fn solve3(t: [f64; 3], b: [f64; 3], n: [f64; 3], x: [f64; 3]) -> Option<[f64; 3]
 impl SurfaceField for NormalField<'_> {
     fn sample(&self, at: &SurfaceSample, hint: Option<u32>, out: &mut [f32; 4]) -> Option<u32> {
         let frames = self.frames.get(at.primitive)?.as_ref()?;
-        let tri = self.triangles[at.primitive][at.triangle];
+        let tri = *frames.triangles.get(at.triangle)?;
         let w = at.barycentric.map(|x| x as f64);
         let mut n = [0.0; 3];
         let mut t = [0.0; 3];
@@ -240,16 +257,17 @@ impl SurfaceField for NormalField<'_> {
 }
 
 /// Texels of the output textures per `edge` (world units): `edge` over the mean world size of a
-/// texel on the UV-mapped primitives `uv_prims` (`√(area / (uv area · size²))`); 0 without UV
-/// area.
+/// texel on the UV-mapped primitives `uv_prims` and the atlas's triangles
+/// (`√(area / (uv area · size²))`); 0 without UV area.
 fn texels_per_edge(
     asset: &Asset,
     surface: &Surface,
     uv_prims: &[usize],
     constraints: &Constraints,
     edge: f64,
+    atlas: Option<&AtlasLayout>,
 ) -> f64 {
-    let (mut area, mut uv_area) = (0.0, 0.0);
+    let (mut area, mut uv_area) = atlas.map_or((0.0, 0.0), AtlasLayout::areas);
     for f in 0..surface.face_count() {
         let Some((p, t, _)) = surface.primitive_point(asset, f, [1.0 / 3.0; 3]) else {
             continue;
@@ -303,8 +321,6 @@ fn to_world(asset: &Asset, p: usize) -> Option<Affine> {
 /// NORMAL (when missing) and TANGENT edits of a UV primitive, and its world-space frames.
 fn frames_of(asset: &Asset, p: usize, edits: &mut Vec<Edit>) -> Option<Frames> {
     let prim = &asset.primitives[p];
-    let to_world = to_world(asset, p)?;
-    let to_local = to_world.inverse()?;
     let normals = match &prim.normals {
         Some(n) => n.clone(),
         None => {
@@ -329,7 +345,43 @@ fn frames_of(asset: &Asset, p: usize, edits: &mut Vec<Edit>) -> Option<Frames> {
         name: "TANGENT".into(),
         data: AttributeData::Vec4(tangents.clone()),
     });
-    // Normals carry through the inverse transpose, tangents through the matrix (glTF §3.7.2.1).
+    world_frames(asset, p, &normals, &tangents, prim.triangles.clone())
+}
+
+/// NORMAL (the input's, or area-weighted when it has none, copied to every vertex split from
+/// it) and MikkTSpace TANGENT in TEXCOORD_0 of the atlas copy `g` of primitive `p`, whose vertex
+/// `i` was split from input vertex `origin[i]`; and its world-space frames.
+fn atlas_frames(
+    asset: &Asset,
+    p: usize,
+    g: &mut PrimitiveGeometry,
+    origin: &[u32],
+) -> Option<Frames> {
+    let prim = &asset.primitives[p];
+    let input = match &prim.normals {
+        Some(n) => n.clone(),
+        None => local_normals(&prim.positions, &prim.triangles),
+    };
+    let normals: Vec<[f32; 3]> = origin.iter().map(|&a| input[a as usize]).collect();
+    let uvs = g.tex_coords.first()?;
+    let tangents = mikktspace_tangents_of(&g.triangles, &g.positions, &normals, uvs);
+    let frames = world_frames(asset, p, &normals, &tangents, g.triangles.clone());
+    g.normals = Some(normals);
+    g.tangents = Some(tangents);
+    frames
+}
+
+/// Mesh-local normals and tangents of primitive `p` carried to world space (normals through
+/// the inverse transpose, tangents through the matrix: glTF §3.7.2.1).
+fn world_frames(
+    asset: &Asset,
+    p: usize,
+    normals: &[[f32; 3]],
+    tangents: &[[f32; 4]],
+    triangles: Vec<[u32; 3]>,
+) -> Option<Frames> {
+    let to_world = to_world(asset, p)?;
+    let to_local = to_world.inverse()?;
     Some(Frames {
         normals: normals
             .iter()
@@ -342,6 +394,7 @@ fn frames_of(asset: &Asset, p: usize, edits: &mut Vec<Edit>) -> Option<Frames> {
                 [w[0], w[1], w[2], t[3] as f64]
             })
             .collect(),
+        triangles,
     })
 }
 
@@ -404,6 +457,106 @@ fn replacements(
     edits
 }
 
+/// The atlas for the replaceable primitives without UVs (`prims`) when `output.uv = "auto"`:
+/// `None` when not asked for, or (with a warning) when no atlas could be made.
+fn atlas_for(
+    target: &Asset,
+    constraints: &Constraints,
+    prims: &[usize],
+    control: &Control,
+    warnings: &mut Vec<String>,
+) -> Result<Option<AtlasLayout>, MethodError> {
+    let output = &constraints.output;
+    if output.uv != UvMode::Auto || output.all_vertex_colors() || prims.is_empty() {
+        return Ok(None);
+    }
+    let with_instance: Vec<(usize, usize)> = prims
+        .iter()
+        .filter_map(|&p| {
+            let mesh = target.primitives[p].mesh;
+            let inst = target.instances.iter().position(|i| i.mesh == mesh)?;
+            Some((p, inst))
+        })
+        .collect();
+    if with_instance.is_empty() {
+        return Ok(None);
+    }
+    build_atlas(
+        target,
+        &with_instance,
+        output.texture_size,
+        output.padding,
+        output.atlas_parameterization,
+        control,
+        warnings,
+    )
+    .map_err(|_: Cancelled| MethodError::Cancelled)
+}
+
+/// The refinement when it applies (enabled, enough texels and source samples per finest edge),
+/// and its report (why it was skipped otherwise).
+fn choose_refinement<'a>(
+    refine: Option<(RefineInput<'a>, &RefineParams)>,
+    texels: f64,
+    edge: f64,
+    control: &Control,
+) -> Result<(Option<Refinement<'a>>, RefineReport), MethodError> {
+    let enabled = refine.as_ref().is_some_and(|r| r.1.enabled);
+    let source_ratio = refine.as_ref().map_or(0.0, |r| edge / r.0.fine.sampling());
+    let min_ratio = refine.as_ref().map_or(2.0, |r| r.1.min_texels_per_edge);
+    let refinement = match refine {
+        Some((input, params))
+            if params.enabled
+                && texels >= params.min_texels_per_edge
+                && source_ratio >= params.min_texels_per_edge =>
+        {
+            control.stage("detail: refinement", 0)?;
+            Some(Refinement::new(input, edge, params))
+        }
+        _ => None,
+    };
+    let mut report = match &refinement {
+        Some(r) => RefineReport {
+            applied: true,
+            ..r.report.clone()
+        },
+        None => RefineReport {
+            skipped_because: Some(if !enabled {
+                "params.refine is false".into()
+            } else if source_ratio < min_ratio {
+                format!(
+                    "the source's detail is sampled {source_ratio:.2} times per finest edge: it \
+                     has nothing finer than the finest level to add"
+                )
+            } else {
+                format!(
+                    "{texels:.2} texels per finest edge: the textures have no band above the \
+                     finest level's sampling"
+                )
+            }),
+            ..RefineReport::default()
+        },
+    };
+    report.texels_per_edge = texels;
+    report.source_samples_per_edge = source_ratio;
+    Ok((refinement, report))
+}
+
+/// Bakes `field` through the primitives' UVs and, when there is one, the shared atlas.
+fn bake(
+    target: &Asset,
+    constraints: &Constraints,
+    output: &FieldOutput,
+    field: &dyn SurfaceField,
+    atlas: Option<&AtlasLayout>,
+    control: &Control,
+) -> Result<(Vec<Edit>, crate::engine::methods::output::OutputReport), Cancelled> {
+    match atlas {
+        Some(a) => write_field_in_atlas(target, constraints, output, field, a, control),
+        None => write_field(target, constraints, output, field, control),
+    }
+}
+
 /// Writes the outputs (see the module doc): edits of the target, `displaced.glb`, the summary
 /// and warnings.
 ///
@@ -418,7 +571,6 @@ pub fn write_outputs(
     constraints: &Constraints,
     control: &Control,
 ) -> Result<Written, MethodError> {
-    let refine_enabled = refine.as_ref().is_some_and(|r| r.1.enabled);
     let normals = area_weighted_normals(finest);
     let displaced: Vec<[f32; 3]> = (finest.positions.iter().zip(&normals))
         .zip(displacement)
@@ -465,9 +617,14 @@ pub fn write_outputs(
             bare.len() - replaceable.len()
         ));
     }
-    let mut edits = replacements(target, input, finest, &displaced, &replaceable);
+    let mut atlas = atlas_for(target, constraints, &replaceable, control, &mut warnings)?;
+    let atlased = atlas.as_ref().map_or(Vec::new(), AtlasLayout::primitives);
+    let rest: Vec<usize> = (replaceable.iter().copied())
+        .filter(|p| !atlased.contains(p))
+        .collect();
+    let mut edits = replacements(target, input, finest, &displaced, &rest);
     summary.replaced_primitives = edits.len();
-    if uv_prims.is_empty() {
+    if uv_prims.is_empty() && atlas.is_none() {
         return Ok(Written {
             edits,
             files: vec![result_file(glb)],
@@ -482,46 +639,29 @@ pub fn write_outputs(
             .map_err(|_: Cancelled| MethodError::Cancelled)?;
         frames[p] = frames_of(target, p, &mut edits);
     }
+    if let Some(a) = &mut atlas {
+        // The replaced primitives go first: the texture edits assign their new material.
+        let mut replaced = Vec::new();
+        for (e, origin) in a.edits.iter_mut().zip(&a.origins) {
+            if let Edit::ReplacePrimitive {
+                primitive,
+                geometry,
+            } = e
+            {
+                frames[*primitive] = atlas_frames(target, *primitive, geometry, origin);
+            }
+            replaced.push(e.clone());
+        }
+        replaced.append(&mut edits);
+        edits = replaced;
+        summary.atlas_primitives = atlased.len();
+        summary.atlas = Some(a.report.clone());
+    }
     summary.tangent_primitives = frames.iter().filter(|f| f.is_some()).count();
     let edge = crate::engine::geometry::expmap::mean_edge_length(finest) as f64;
-    let texels = texels_per_edge(target, input, &uv_prims, constraints, edge);
-    let source_ratio = refine.as_ref().map_or(0.0, |r| edge / r.0.fine.sampling());
-    let min_ratio = refine.as_ref().map_or(2.0, |r| r.1.min_texels_per_edge);
-    let refinement = match refine {
-        Some((input, params))
-            if params.enabled
-                && texels >= params.min_texels_per_edge
-                && source_ratio >= params.min_texels_per_edge =>
-        {
-            control.stage("detail: refinement", 0)?;
-            Some(Refinement::new(input, edge, params))
-        }
-        _ => None,
-    };
-    summary.refinement = match &refinement {
-        Some(r) => RefineReport {
-            applied: true,
-            ..r.report.clone()
-        },
-        None => RefineReport {
-            skipped_because: Some(if !refine_enabled {
-                "params.refine is false".into()
-            } else if source_ratio < min_ratio {
-                format!(
-                    "the source's detail is sampled {source_ratio:.2} times per finest edge: it \
-                     has nothing finer than the finest level to add"
-                )
-            } else {
-                format!(
-                    "{texels:.2} texels per finest edge: the textures have no band above the \
-                     finest level's sampling"
-                )
-            }),
-            ..RefineReport::default()
-        },
-    };
-    summary.refinement.texels_per_edge = texels;
-    summary.refinement.source_samples_per_edge = source_ratio;
+    let texels = texels_per_edge(target, input, &uv_prims, constraints, edge, atlas.as_ref());
+    let (refinement, refine_report) = choose_refinement(refine, texels, edge, control)?;
+    summary.refinement = refine_report;
     if let Some(r) = &refinement {
         let [a, b] = r.sampled_range();
         if a.is_finite() && b.is_finite() && b > a {
@@ -534,11 +674,6 @@ pub fn write_outputs(
         finest: &located,
         refinement: refinement.as_ref(),
         frames,
-        triangles: target
-            .primitives
-            .iter()
-            .map(|p| p.triangles.as_slice())
-            .collect(),
     };
     let out = |slot, encoding, name| FieldOutput {
         slot,
@@ -548,7 +683,7 @@ pub fn write_outputs(
         vertex_samples: 0,
     };
     let span = control.span(0.0, 0.5);
-    let (normal_edits, normal_report) = write_field(
+    let (normal_edits, normal_report) = bake(
         target,
         constraints,
         &out(
@@ -557,6 +692,7 @@ pub fn write_outputs(
             "detail_normal",
         ),
         &normal_field,
+        atlas.as_ref(),
         control,
     )?;
     drop(span);
@@ -567,7 +703,7 @@ pub fn write_outputs(
         offset,
         scale: range,
     };
-    let (disp_edits, disp_report) = write_field(
+    let (disp_edits, disp_report) = bake(
         target,
         constraints,
         &out(
@@ -576,16 +712,24 @@ pub fn write_outputs(
             "detail_displacement",
         ),
         &field,
+        atlas.as_ref(),
         control,
     )?;
-    // A normal-map edit without a material creates one at the end of the material list; the
-    // displacement of the same primitives goes into that material.
-    let created = target.json["materials"].as_array().map_or(0, |m| m.len());
+    // Each normal-map edit without a material creates one at the end of the material list, in
+    // order; the displacement of the same primitives (same groups, same order) goes into it.
+    let mut created = target.json["materials"].as_array().map_or(0, |m| m.len());
     edits.extend(normal_edits);
     let extra = serde_json::json!({ "scale": range, "offset": offset });
     for mut e in disp_edits {
         if let Edit::SetTexture { material, .. } = &mut e {
-            let m = *material.get_or_insert(created);
+            let m = match *material {
+                Some(m) => m,
+                None => {
+                    created += 1;
+                    created - 1
+                }
+            };
+            *material = Some(m);
             edits.push(Edit::SetMaterialExtra {
                 material: m,
                 key: DISPLACEMENT_KEY.into(),

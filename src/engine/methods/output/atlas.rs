@@ -31,13 +31,45 @@ fn gutter(padding: u32) -> u32 {
 }
 
 /// The atlas output of some primitives.
-pub(super) struct AtlasLayout {
+pub(crate) struct AtlasLayout {
     /// ReplacePrimitive per primitive.
-    pub(super) edits: Vec<Edit>,
+    pub(crate) edits: Vec<Edit>,
+    /// Per edit: the input vertex each new vertex was split from.
+    pub(crate) origins: Vec<Vec<u32>>,
     /// The new triangles, placed, for the bake.
     pub(super) tris: Vec<PlacedTriangle>,
     /// Quality figures.
-    pub(super) report: AtlasReport,
+    pub(crate) report: AtlasReport,
+}
+
+impl AtlasLayout {
+    /// The replaced primitives, in edit order.
+    pub(crate) fn primitives(&self) -> Vec<usize> {
+        self.edits
+            .iter()
+            .filter_map(|e| match e {
+                Edit::ReplacePrimitive { primitive, .. } => Some(*primitive),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// World area and texel area (in texture widths², i.e. UV area) of the atlas's triangles.
+    pub(crate) fn areas(&self) -> (f64, f64) {
+        self.tris.iter().fold((0.0, 0.0), |(a, u), t| {
+            let w = t.world.map(|p| p.map(f64::from));
+            let n = crate::engine::math::cross(
+                crate::engine::math::sub(w[1], w[0]),
+                crate::engine::math::sub(w[2], w[0]),
+            );
+            let q = t.uv.map(|c| c.map(f64::from));
+            let uv = 0.5
+                * ((q[1][0] - q[0][0]) * (q[2][1] - q[0][1])
+                    - (q[2][0] - q[0][0]) * (q[1][1] - q[0][1]))
+                    .abs();
+            (a + 0.5 * crate::engine::math::dot(n, n).sqrt(), u + uv)
+        })
+    }
 }
 
 /// Whether primitive `p` may be replaced (no skin, no morph targets).
@@ -100,11 +132,12 @@ fn weld(asset: &Asset, prims: &[(usize, usize)]) -> (Surface, Vec<(usize, usize)
 
 /// Builds the atlas output for `prims` ((primitive, first instance) pairs), or `None` with a
 /// warning when no atlas could be made.
-pub(super) fn build(
+pub(crate) fn build(
     asset: &Asset,
     prims: &[(usize, usize)],
     texture_size: u32,
     padding: u32,
+    parameterization: crate::engine::asset::constraints::AtlasParameterization,
     control: &Control,
     warnings: &mut Vec<String>,
 ) -> Result<Option<AtlasLayout>, Cancelled> {
@@ -113,6 +146,7 @@ pub(super) fn build(
     let params = AtlasParams {
         texture_size,
         gutter: gutter(padding),
+        parameterization: parameterization.into(),
         ..AtlasParams::default()
     };
     let atlas = match generate(&surface, &params, control) {
@@ -136,6 +170,7 @@ pub(super) fn build(
         }
     }
     let mut edits = Vec::new();
+    let mut origins = Vec::new();
     let mut tris = Vec::new();
     for &(p, ii) in prims {
         control.check()?;
@@ -164,6 +199,7 @@ pub(super) fn build(
         }
         let mut g = PrimitiveGeometry::default();
         let mut uv = Vec::new();
+        let mut origin = Vec::new();
         // (original vertex, chart) -> new vertex: the first chart of each vertex in `first`,
         // the others (seam vertices) in `index`.
         let mut first: Vec<Option<(u32, u32)>> = vec![None; prim.positions.len()];
@@ -175,6 +211,7 @@ pub(super) fn build(
                     .unwrap_or((u32::MAX, fallback[*a as usize].unwrap_or([0.0, 0.0])));
                 let mut add = || {
                     g.positions.push(prim.positions[*a as usize]);
+                    origin.push(*a);
                     uv.push(coord);
                     (g.positions.len() - 1) as u32
                 };
@@ -213,9 +250,11 @@ pub(super) fn build(
             primitive: p,
             geometry: g,
         });
+        origins.push(origin);
     }
     Ok(Some(AtlasLayout {
         edits,
+        origins,
         tris,
         report: atlas.report,
     }))

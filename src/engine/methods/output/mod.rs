@@ -23,8 +23,10 @@
 //!   without UVs (not skinned or morphed) get a generated atlas instead ([`atlas`]): they are
 //!   replaced by copies carrying TEXCOORD_0 and baked into one texture of a new material. Other
 //!   outputs (normal maps, ...) and outputs without a vertex attribute (ElastiFace writes COLOR_0
-//!   on the source's own vertices itself) are left as they were, so a method writing several
-//!   fields keeps one consistent layout.
+//!   on the source's own vertices itself) are left as they were by [`write_field`]; a method
+//!   writing several fields builds the atlas once ([`atlas::build`]) and bakes each through it
+//!   with [`write_field_in_atlas`], so its fields keep one layout (`detail`'s normal map and
+//!   displacement texture).
 //!
 //! The output depends only on the field's values, never on the thread count: texels and
 //! vertices are independent and results are collected in order.
@@ -180,6 +182,7 @@ pub fn write_field(
                 &take,
                 size,
                 constraints.output.padding,
+                constraints.output.atlas_parameterization,
                 control,
                 &mut report.warnings,
             )?;
@@ -192,6 +195,65 @@ pub fn write_field(
             }
         }
     }
+    finish(
+        asset,
+        constraints,
+        output,
+        field,
+        layout,
+        atlas_edits,
+        report,
+        control,
+    )
+}
+
+/// As [`write_field`], with the primitives of `atlas` (built by the caller with
+/// [`atlas::build`], shared by several fields so they keep one layout) baked through it. The
+/// atlas's own edits (the replaced primitives) are the caller's to emit, once.
+///
+/// # Errors
+/// [`Cancelled`].
+pub(crate) fn write_field_in_atlas(
+    asset: &Asset,
+    constraints: &Constraints,
+    output: &FieldOutput,
+    field: &dyn SurfaceField,
+    atlas: &atlas::AtlasLayout,
+    control: &Control,
+) -> Result<(Vec<Edit>, OutputReport), Cancelled> {
+    let mut report = OutputReport::default();
+    let mut layout = texels::layout(asset, constraints, &mut report.warnings);
+    let replaced = atlas.primitives();
+    layout.vertex_path.retain(|(p, _)| !replaced.contains(p));
+    layout.atlas = atlas.tris.clone();
+    report.atlas = Some(atlas.report.clone());
+    finish(
+        asset,
+        constraints,
+        output,
+        field,
+        layout,
+        Vec::new(),
+        report,
+        control,
+    )
+}
+
+/// The bake, padding, encoding and vertex path shared by [`write_field`] and
+/// [`write_field_in_atlas`]; `atlas_edits` go first (the texture edit assigns its new material
+/// to the replaced primitives).
+#[allow(clippy::too_many_arguments)]
+fn finish(
+    asset: &Asset,
+    constraints: &Constraints,
+    output: &FieldOutput,
+    field: &dyn SurfaceField,
+    layout: texels::Layout,
+    atlas_edits: Vec<Edit>,
+    mut report: OutputReport,
+    control: &Control,
+) -> Result<(Vec<Edit>, OutputReport), Cancelled> {
+    let size = constraints.output.texture_size;
     let span = control.span(0.0, 0.75);
     let baked = texels::bake_groups(asset, &layout, size, field, control)?;
     drop(span);
@@ -199,7 +261,6 @@ pub fn write_field(
     let span = control.span(0.75, 0.9);
     let finished =
         texels::finish_textures(baked, size, constraints.output.padding, output, control)?;
-    // The replaced primitives first: the texture edit assigns its new material to them.
     let mut edits = atlas_edits;
     for (texture, tr) in finished {
         edits.push(texture);
@@ -222,5 +283,5 @@ pub fn write_field(
 }
 
 pub(crate) use crate::engine::math::{cross, dot, normal_of, sub, to_f32};
-pub(crate) use atlas::replaceable as atlas_replaceable;
+pub(crate) use atlas::{build as build_atlas, replaceable as atlas_replaceable, AtlasLayout};
 pub(crate) use texels::uv_set_of;

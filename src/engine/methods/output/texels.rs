@@ -16,6 +16,7 @@ use crate::engine::texture::encode::encode_png_srgb;
 use crate::engine::texture::pad::pad;
 
 /// A triangle placed in the world, with its UVs.
+#[derive(Clone)]
 pub(super) struct PlacedTriangle {
     pub(super) primitive: usize,
     /// Index into the primitive's triangles.
