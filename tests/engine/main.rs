@@ -70,3 +70,4 @@ mod surface_bvh_properties;
 mod texture_properties;
 mod uv_arap;
 mod uv_atlas;
+mod uv_merge_sweep;

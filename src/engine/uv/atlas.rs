@@ -56,6 +56,11 @@ pub struct AtlasParams {
     /// LSCM's; when LSCM flipped a triangle, whenever ARAP has none). The
     /// stretch bound, the splits and the merge all see the chart as finally flattened.
     pub parameterization: Parameterization,
+    /// Largest union of two charts the merge tries, in faces ([`super::merge`]; 0 turns the
+    /// merge off).
+    pub merge_max_faces: usize,
+    /// Most merge rounds ([`super::merge`]).
+    pub merge_rounds: usize,
 }
 
 impl Default for AtlasParams {
@@ -67,6 +72,8 @@ impl Default for AtlasParams {
             max_normal_deviation: 60.0,
             max_stretch: 1.2,
             parameterization: Parameterization::default(),
+            merge_max_faces: super::merge::MERGE_MAX_FACES,
+            merge_rounds: super::merge::MERGE_ROUNDS,
         }
     }
 }

@@ -24,8 +24,15 @@
 //! - [`MERGE_ROUNDS`] = 8 caps the rounds. Chart counts at the start of each round on the
 //!   README's scans: cat 242, 136, 78, 46, 32, 25, 23 (settled in 7 rounds); skull 1,137 … 61
 //!   (7); koala 656 … 61 (settled in the 8th). Demosthenes (25 → 21) and Nefertiti (52 → 50)
-//!   are still merging a few charts in the 8th round; more rounds would cost about one more
-//!   LSCM pass over the small charts each, and were not measured.
+//!   are still merging a few charts in the 8th round.
+//!
+//! Both are `AtlasParams` fields (`merge_max_faces`, `merge_rounds`) with these defaults,
+//! chosen from a sweep over the six scans of the README's xatlas comparison
+//! (`tests/engine/uv_merge_sweep.rs`, table in the README): 16 rounds instead of 8 change one
+//! scan by 1-4 charts; 4,000 faces instead of 2,000 cut the charts 234 → 155 and the seams by
+//! 14 %, for 0.01-0.03 more L2 stretch on four scans, 0.02-0.05 less packing on three and 18 %
+//! more atlas time; 1,000 faces leave 398 charts and 22 % longer seams. Without the merge
+//! (0 faces): 3,770 charts and twice the seams.
 //!
 //! Written here: no crate merges charts under a distortion bound.
 
@@ -38,10 +45,10 @@ use super::charts::Adjacency;
 use crate::engine::control::{Cancelled, Control};
 use crate::engine::mesh::Surface;
 
-/// The largest union tried, in faces (module doc).
+/// The default largest union tried, in faces (`AtlasParams::merge_max_faces`; module doc).
 pub const MERGE_MAX_FACES: usize = 2000;
 
-/// The most merge rounds (module doc).
+/// The default most merge rounds (`AtlasParams::merge_rounds`; module doc).
 pub const MERGE_ROUNDS: usize = 8;
 
 /// A chart's identity while it is unchanged: its first face and its face count.
@@ -103,13 +110,13 @@ pub(super) fn merge_charts(
     control: &Control,
 ) -> Result<Vec<Flat>, Cancelled> {
     let mut failed: HashSet<(ChartKey, ChartKey)> = HashSet::new();
-    for _ in 0..MERGE_ROUNDS {
+    for _ in 0..params.merge_rounds {
         control.check()?;
         let mut candidates: Vec<(usize, f64, u32, u32)> = shared_boundaries(surface, adj, &flats)
             .into_iter()
             .filter(|&(a, b, _)| {
                 let (fa, fb) = (&flats[a as usize], &flats[b as usize]);
-                fa.faces.len() + fb.faces.len() <= MERGE_MAX_FACES
+                fa.faces.len() + fb.faces.len() <= params.merge_max_faces
                     && !failed.contains(&(key(fa), key(fb)))
             })
             .map(|(a, b, l)| {
