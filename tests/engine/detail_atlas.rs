@@ -86,6 +86,28 @@ fn vertex_reads(out: &TransferOutput) -> Vec<([f32; 3], f64, f64)> {
         .collect()
 }
 
+/// The GLB with its first material replaced by `material` (JSON chunk rewritten, the binary
+/// chunk kept).
+fn with_material(glb: &[u8], material: serde_json::Value) -> Vec<u8> {
+    let word = |at: usize| u32::from_le_bytes(glb[at..at + 4].try_into().unwrap()) as usize;
+    let json_len = word(12);
+    let mut doc: serde_json::Value = serde_json::from_slice(&glb[20..20 + json_len]).unwrap();
+    doc["materials"][0] = material;
+    let mut text = serde_json::to_vec(&doc).unwrap();
+    while !text.len().is_multiple_of(4) {
+        text.push(b' ');
+    }
+    let rest = &glb[20 + json_len..];
+    let mut out = Vec::new();
+    out.extend_from_slice(&glb[0..8]);
+    out.extend_from_slice(&((20 + text.len() + rest.len()) as u32).to_le_bytes());
+    out.extend_from_slice(&(text.len() as u32).to_le_bytes());
+    out.extend_from_slice(&glb[16..20]);
+    out.extend_from_slice(&text);
+    out.extend_from_slice(rest);
+    out
+}
+
 fn key(p: [f32; 3]) -> [u32; 3] {
     p.map(f32::to_bits)
 }
@@ -106,7 +128,11 @@ fn detail_onto_a_target_without_uvs_bakes_both_maps_through_one_generated_atlas(
     let (source, base, with_uvs) = sphere_pair(32, bumps);
     let mut bare = uv_sphere(128, 64, |p| [1.1 * p[0], p[1], 0.9 * p[2]]);
     bare.uvs = None;
-    let without_uvs = uv_mesh_glb(&bare, None, 1.0);
+    let without_uvs = with_material(
+        &uv_mesh_glb(&bare, None, 1.0),
+        json!({"name": "clay", "doubleSided": true,
+            "pbrMetallicRoughness": {"baseColorFactor": [0.8, 0.4, 0.2, 1.0], "roughnessFactor": 0.3}}),
+    );
 
     let reference = run(&source, Some(&base), &with_uvs, constraints("auto"));
     let atlas = run(&source, Some(&base), &without_uvs, constraints("auto"));
@@ -135,6 +161,18 @@ fn detail_onto_a_target_without_uvs_bakes_both_maps_through_one_generated_atlas(
     assert!(
         model.primitives[0].positions.len() > bare.positions.len(),
         "the atlas splits vertices at its seams"
+    );
+
+    // The maps' new material is a copy of the primitive's own (factors, double-sidedness).
+    let m = model.primitives[0].material.expect("a material");
+    let mat = &model.json["materials"][m];
+    assert!(m >= 1, "a new material, not the input's: {m}");
+    assert_eq!(mat["doubleSided"], true, "{mat}");
+    assert_eq!(mat["pbrMetallicRoughness"]["roughnessFactor"], 0.3, "{mat}");
+    assert!(mat["normalTexture"]["index"].is_u64(), "{mat}");
+    assert!(
+        mat["extras"]["retex_displacement"]["index"].is_u64(),
+        "{mat}"
     );
 
     // Both maps read back at the target's vertices agree with the bake through hand-made UVs.
