@@ -65,7 +65,9 @@
 
 use std::sync::Arc;
 
-use super::param::{local_triangle, signed_area, triangle_stretch};
+use super::param::{
+    barycentric_gradients, local_corners, local_triangle, signed_area, triangle_stretch,
+};
 use crate::engine::asset::constraints::AtlasParameterization;
 use crate::engine::linalg::{SparsityPattern, SymbolicCholesky, SymmetricMatrix};
 use crate::engine::mesh::Surface;
@@ -117,29 +119,19 @@ struct Tri {
 }
 
 fn triangles(surface: &Surface, faces: &[u32], vertices: &[u32]) -> Option<Vec<Tri>> {
+    let corners = local_corners(surface, faces, vertices)?;
     faces
         .iter()
-        .map(|f| {
-            let fv = surface.faces[*f as usize];
-            let mut corners = [0usize; 3];
-            for k in 0..3 {
-                corners[k] = vertices.binary_search(&fv[k]).ok()?;
-            }
+        .zip(corners)
+        .map(|(f, corners)| {
             let (q, area) = local_triangle(surface.face_positions(*f as usize));
             if !(area > 0.0 && area.is_finite()) {
                 return None;
             }
-            let grad = [0, 1, 2].map(|j| {
-                let e = [
-                    q[(j + 2) % 3][0] - q[(j + 1) % 3][0],
-                    q[(j + 2) % 3][1] - q[(j + 1) % 3][1],
-                ];
-                [-e[1] / (2.0 * area), e[0] / (2.0 * area)]
-            });
             Some(Tri {
                 corners,
                 area,
-                grad,
+                grad: barycentric_gradients(q, area),
             })
         })
         .collect()

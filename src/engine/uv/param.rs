@@ -102,6 +102,38 @@ fn pins(surface: &Surface, vertices: &[u32]) -> (usize, usize) {
     (a, b)
 }
 
+/// Each face's corners as indices into `vertices` (sorted surface indices, [`chart_vertices`]);
+/// `None` if a corner is missing.
+pub(super) fn local_corners(
+    surface: &Surface,
+    faces: &[u32],
+    vertices: &[u32],
+) -> Option<Vec<[usize; 3]>> {
+    faces
+        .iter()
+        .map(|f| {
+            let fv = surface.faces[*f as usize];
+            let mut c = [0usize; 3];
+            for k in 0..3 {
+                c[k] = vertices.binary_search(&fv[k]).ok()?;
+            }
+            Some(c)
+        })
+        .collect()
+}
+
+/// Gradients of the barycentric functions of the 2-D triangle `q` (counter-clockwise, area
+/// `area` > 0): `∇φ_j = rot90(q_(j+2) − q_(j+1)) / (2 area)`.
+pub(super) fn barycentric_gradients(q: [[f64; 2]; 3], area: f64) -> [[f64; 2]; 3] {
+    [0, 1, 2].map(|j| {
+        let e = [
+            q[(j + 2) % 3][0] - q[(j + 1) % 3][0],
+            q[(j + 2) % 3][1] - q[(j + 1) % 3][1],
+        ];
+        [-e[1] / (2.0 * area), e[0] / (2.0 * area)]
+    })
+}
+
 /// The sorted, deduplicated surface vertices of the faces `faces` (a chart's local indexing).
 pub fn chart_vertices(surface: &Surface, faces: &[u32]) -> Vec<u32> {
     let mut vertices: Vec<u32> = faces
@@ -159,17 +191,7 @@ pub fn lscm(surface: &Surface, faces: &[u32], vertices: &[u32]) -> Option<Vec<[f
     }
     // Corners in local indices, then the pattern: every free unknown of a vertex couples with
     // every free unknown of the vertex itself and of its edge neighbours.
-    let corners: Vec<[usize; 3]> = faces
-        .iter()
-        .map(|f| {
-            let fv = surface.faces[*f as usize];
-            let mut c = [0usize; 3];
-            for k in 0..3 {
-                c[k] = vertices.binary_search(&fv[k]).ok()?;
-            }
-            Some(c)
-        })
-        .collect::<Option<_>>()?;
+    let corners = local_corners(surface, faces, vertices)?;
     let pattern = Arc::new(pattern_of(&corners, n, &free, m)?);
     let mut values = vec![0.0f64; pattern.nnz()];
     let mut rhs = vec![0.0f64; m];
@@ -179,14 +201,7 @@ pub fn lscm(surface: &Surface, faces: &[u32], vertices: &[u32]) -> Option<Vec<[f
             continue;
         }
         let w = area.sqrt();
-        let mut g = [[0.0f64; 2]; 3];
-        for (j, gj) in g.iter_mut().enumerate() {
-            let e = [
-                q[(j + 2) % 3][0] - q[(j + 1) % 3][0],
-                q[(j + 2) % 3][1] - q[(j + 1) % 3][1],
-            ];
-            *gj = [-e[1] / (2.0 * area), e[0] / (2.0 * area)];
-        }
+        let g = barycentric_gradients(q, area);
         for c in 0..2 {
             // rot90(g) = (−g.y, g.x); residual = Σ v_j g_j[c] − Σ u_j rot90(g_j)[c].
             let mut row: [(usize, f64); 6] = [(0, 0.0); 6];
