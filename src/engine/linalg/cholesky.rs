@@ -69,6 +69,46 @@ impl SymbolicCholesky {
         })
     }
 
+    /// Analyses `pattern` with the given elimination order (`order[k]` is the unknown
+    /// eliminated k-th, a permutation of `0..n`) instead of AMD: for callers that know a better
+    /// order, such as a nested dissection of a mesh graph ([`super::dissection`]).
+    ///
+    /// # Errors
+    /// [`LinalgError::InvalidPattern`] when `order` is not a permutation of the pattern's
+    /// unknowns; [`LinalgError::Factorization`] as [`SymbolicCholesky::new`].
+    pub fn with_elimination_order(
+        pattern: Arc<SparsityPattern>,
+        order: &[usize],
+    ) -> Result<Self, LinalgError> {
+        let n = pattern.dim();
+        let mut inverse = vec![usize::MAX; n];
+        if order.len() != n {
+            return Err(LinalgError::InvalidPattern(format!(
+                "elimination order has {} entries, the pattern {n} unknowns",
+                order.len()
+            )));
+        }
+        for (k, v) in order.iter().enumerate() {
+            if *v >= n || inverse[*v] != usize::MAX {
+                return Err(LinalgError::InvalidPattern(format!(
+                    "elimination order is not a permutation (entry {k} = {v})"
+                )));
+            }
+            inverse[*v] = k;
+        }
+        let perm = faer::perm::PermRef::new_checked(order, &inverse, n);
+        let faer = factorize_symbolic_cholesky(
+            pattern.as_faer(),
+            Side::Lower,
+            SymmetricOrdering::Custom(perm),
+            Default::default(),
+        )
+        .map_err(|e| LinalgError::Factorization(format!("{e:?}")))?;
+        Ok(Self {
+            inner: Arc::new(Analysis { pattern, faer }),
+        })
+    }
+
     /// The analysed pattern.
     pub fn pattern(&self) -> &Arc<SparsityPattern> {
         &self.inner.pattern

@@ -9,6 +9,8 @@
 //!   ordering) split into a [`cholesky::SymbolicCholesky`] computed once per pattern and
 //!   [`cholesky::NumericCholesky`] factors computed from it for any value vector, with solves for
 //!   one or many right-hand sides.
+//! - [`dissection`]: a nested-dissection elimination order from breadth-first level
+//!   structures, for the large planar-like systems where AMD leaves too much fill.
 //! - [`lanczos`]: shift-invert block Lanczos (Krylov–Schur restarts) for the lowest eigenpairs
 //!   of `K φ = λ M φ` with `M` diagonal, on a Cholesky factor of `K − σM`.
 //!
@@ -16,6 +18,7 @@
 //! the factorization itself is faer's.
 
 pub mod cholesky;
+pub mod dissection;
 pub mod lanczos;
 pub mod simd_state;
 pub mod sparse;

@@ -86,6 +86,46 @@ impl SparsityPattern {
         }
     }
 
+    /// Builds a pattern from compressed columns that are already symmetric, with strictly
+    /// ascending rows and the diagonal in every column (checked: O(nnz), symmetry in debug
+    /// builds only).
+    ///
+    /// # Errors
+    /// [`LinalgError::InvalidPattern`] for inconsistent arrays, unsorted or out-of-range rows,
+    /// or a missing diagonal.
+    pub fn from_sorted_csc(
+        n: usize,
+        col_ptr: Vec<usize>,
+        row_idx: Vec<usize>,
+    ) -> Result<Self, LinalgError> {
+        let bad = |m: String| Err(LinalgError::InvalidPattern(m));
+        if col_ptr.len() != n + 1 || col_ptr[0] != 0 || col_ptr[n] != row_idx.len() {
+            return bad(format!("{} column pointers for {n} columns", col_ptr.len()));
+        }
+        for j in 0..n {
+            if col_ptr[j] > col_ptr[j + 1] {
+                return bad(format!("column {j} ends before it starts"));
+            }
+            let rows = &row_idx[col_ptr[j]..col_ptr[j + 1]];
+            if !rows.windows(2).all(|w| w[0] < w[1]) || rows.last().is_some_and(|r| *r >= n) {
+                return bad(format!("column {j}: rows not ascending or out of range"));
+            }
+            if rows.binary_search(&j).is_err() {
+                return bad(format!("column {j} has no diagonal"));
+            }
+        }
+        let pattern = Self {
+            n,
+            col_ptr,
+            row_idx,
+        };
+        debug_assert!((0..n).all(|j| pattern
+            .column(j)
+            .iter()
+            .all(|i| pattern.find(j, *i).is_some())));
+        Ok(pattern)
+    }
+
     /// Matrix dimension.
     pub fn dim(&self) -> usize {
         self.n

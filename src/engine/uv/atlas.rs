@@ -297,10 +297,7 @@ fn flatten_all(
     stage: &crate::engine::control::StageProgress<'_>,
 ) -> Result<Vec<Flat>, AtlasError> {
     let grown = grow(adj, params.max_normal_deviation);
-    let mut pending: Vec<Vec<u32>> = Vec::new();
-    for g in grown {
-        pending.extend(super::charts::components(adj, &g));
-    }
+    let mut pending = super::charts::components_of_charts(adj, &grown);
     let mut done = Vec::new();
     while !pending.is_empty() {
         control.check()?;

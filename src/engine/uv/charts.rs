@@ -262,6 +262,44 @@ pub fn split(surface: &Surface, adj: &Adjacency, faces: &[u32]) -> Vec<Vec<u32>>
     parts
 }
 
+/// [`components`] of every chart of a partition of some of the faces (`charts`, each sorted),
+/// in chart order: the same lists, found with one label per face instead of a binary search
+/// per neighbour (the first round of the atlas has charts of 80k faces).
+pub fn components_of_charts(adj: &Adjacency, charts: &[Vec<u32>]) -> Vec<Vec<u32>> {
+    const NONE: u32 = u32::MAX;
+    let mut label = vec![NONE; adj.neighbors.len()];
+    for (c, faces) in charts.iter().enumerate() {
+        for f in faces {
+            label[*f as usize] = c as u32;
+        }
+    }
+    let mut out = Vec::new();
+    for (c, faces) in charts.iter().enumerate() {
+        for f in faces {
+            if label[*f as usize] != c as u32 {
+                continue;
+            }
+            // Visited faces are relabelled NONE.
+            label[*f as usize] = NONE;
+            let mut comp = vec![*f];
+            let mut i = 0;
+            while i < comp.len() {
+                let g = comp[i];
+                for h in adj.neighbors[g as usize].iter().flatten() {
+                    if label[*h as usize] == c as u32 {
+                        label[*h as usize] = NONE;
+                        comp.push(*h);
+                    }
+                }
+                i += 1;
+            }
+            comp.sort_unstable();
+            out.push(comp);
+        }
+    }
+    out
+}
+
 /// Edge-connected components of a sorted face list, each sorted, ordered by first face.
 pub fn components(adj: &Adjacency, faces: &[u32]) -> Vec<Vec<u32>> {
     let mut seen = vec![false; faces.len()];

@@ -246,16 +246,26 @@ pub fn run(
     };
     let surfaces = control.span(0.0, 0.1);
     control.stage("surface", 2)?;
-    let mut src_surface = build_surface(source, &weld).map_err(|source| MethodError::Mesh {
+    let (src_surface, tgt_surface) = rayon::join(
+        || build_surface(source, &weld),
+        || build_surface(target, &weld),
+    );
+    let mut src_surface = src_surface.map_err(|source| MethodError::Mesh {
         side: "source",
         source,
     })?;
-    let tgt_surface = build_surface(target, &weld).map_err(|source| MethodError::Mesh {
+    let tgt_surface = tgt_surface.map_err(|source| MethodError::Mesh {
         side: "target",
         source,
     })?;
-    let mut src_bvh = Bvh::build(&src_surface.positions, &src_surface.faces);
-    let tgt_bvh = Bvh::build(&tgt_surface.positions, &tgt_surface.faces);
+    // The target's hierarchy only serves to resolve correspondences.
+    let (mut src_bvh, tgt_bvh) = rayon::join(
+        || Bvh::build(&src_surface.positions, &src_surface.faces),
+        || match constraints.correspondences.is_empty() {
+            true => Bvh::build(&[], &[]),
+            false => Bvh::build(&tgt_surface.positions, &tgt_surface.faces),
+        },
+    );
     let mut warnings = Vec::new();
 
     drop(surfaces);
