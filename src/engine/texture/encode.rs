@@ -11,6 +11,7 @@
 
 use image::codecs::png::{CompressionType, FilterType, PngEncoder};
 use image::{ExtendedColorType, ImageEncoder, ImageFormat};
+use rayon::prelude::*;
 
 use super::color::{linear_to_srgb8, srgb8_to_linear};
 
@@ -75,17 +76,23 @@ pub fn try_encode_png_srgb(
             got: pixels.len() as u64,
         });
     }
-    let opaque = pixels.iter().all(|p| alpha8(p[3]) == 255);
+    let opaque = pixels.par_iter().all(|p| alpha8(p[3]) == 255);
     let channels = if opaque { 3 } else { 4 };
-    let mut raw = Vec::with_capacity(pixels.len() * channels);
-    for p in pixels {
-        raw.push(linear_to_srgb8(p[0]));
-        raw.push(linear_to_srgb8(p[1]));
-        raw.push(linear_to_srgb8(p[2]));
-        if !opaque {
-            raw.push(alpha8(p[3]));
-        }
-    }
+    // Converted in parallel by rows (the same bytes in the same order for any thread count).
+    let mut raw = vec![0u8; pixels.len() * channels];
+    let row = width as usize;
+    raw.par_chunks_mut(row * channels)
+        .zip(pixels.par_chunks(row))
+        .for_each(|(out, texels)| {
+            for (o, p) in out.chunks_exact_mut(channels).zip(texels) {
+                o[0] = linear_to_srgb8(p[0]);
+                o[1] = linear_to_srgb8(p[1]);
+                o[2] = linear_to_srgb8(p[2]);
+                if !opaque {
+                    o[3] = alpha8(p[3]);
+                }
+            }
+        });
     let color = if opaque {
         ExtendedColorType::Rgb8
     } else {
