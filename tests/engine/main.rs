@@ -70,4 +70,5 @@ mod surface_bvh_properties;
 mod texture_properties;
 mod uv_arap;
 mod uv_atlas;
+mod uv_lscm;
 mod uv_merge_sweep;

@@ -15,7 +15,9 @@
 //! where it is (the paper's "smaller and smaller area"; the caller shrinks `radius_px` per
 //! hierarchy level), never farther than `radius_px` from its start. A try is kept only if the
 //! error of the seams at that vertex drops and none of its triangles changes orientation or
-//! degenerates (a triangle that starts degenerate is not checked). Vertices without seams do not
+//! degenerates (a triangle that starts degenerate is not checked); with a non-toroidal pattern
+//! a try outside the image is never taken (such moves were clamped at the output, a seam the
+//! relaxation had not seen). Vertices without seams do not
 //! move. Sweep count and tries are not published; 4 × 8 is enough for the error to stop dropping
 //! on the test cases (tests/engine/pattern_fit.rs). References to vertices that do not exist and
 //! non-finite start positions make their seams and triangles inert instead of panicking.
@@ -153,11 +155,18 @@ pub fn relax(texture: &PatternTexture, problem: &RelaxProblem, rng: &mut SplitMi
                     .sum()
             };
             let mut current = local(&px);
+            // A non-toroidal pattern's patches stay inside the image (§4.2), moved or not.
+            let (w, h) = (texture.width() as f32, texture.height() as f32);
+            let inside = |p: [f32; 2]| {
+                texture.toroidal() || ((0.0..=w).contains(&p[0]) && (0.0..=h).contains(&p[1]))
+            };
             for _ in 0..TRIES {
                 let old = px[v];
                 let candidate = random_in_disc(old, step, rng);
                 let start = problem.start_px[v];
-                if (candidate[0] - start[0]).hypot(candidate[1] - start[1]) > radius {
+                if (candidate[0] - start[0]).hypot(candidate[1] - start[1]) > radius
+                    || !inside(candidate)
+                {
                     continue;
                 }
                 px[v] = candidate;
