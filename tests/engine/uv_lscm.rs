@@ -222,6 +222,9 @@ fn dense_reference(s: &Surface) -> Vec<[f64; 2]> {
         .collect()
 }
 
+/// A map from the disc's polar coordinates into 3-D.
+type Placement = Box<dyn Fn(f64, f64) -> [f64; 3]>;
+
 fn solve(s: &Surface) -> Vec<[f64; 2]> {
     let faces: Vec<u32> = (0..s.faces.len() as u32).collect();
     let vertices = chart_vertices(s, &faces);
@@ -261,7 +264,7 @@ fn a_flat_chart_comes_back_as_its_own_layout_up_to_a_similarity() {
 
 #[test]
 fn curved_charts_match_the_full_system_with_every_u_v_term() {
-    let cases: [(&str, Box<dyn Fn(f64, f64) -> [f64; 3]>); 3] = [
+    let cases: [(&str, Placement); 3] = [
         (
             "cap 70°",
             Box::new(|rho: f64, theta: f64| {
