@@ -19,25 +19,7 @@ use crate::uv_atlas::{check_atlas, torus};
 
 /// A disc of `rings × segments` (plus a centre vertex) mapped by `place(ρ, θ)`, ρ in [0, 1].
 fn polar(rings: usize, segments: usize, place: impl Fn(f64, f64) -> [f64; 3]) -> Surface {
-    let mut positions = vec![place(0.0, 0.0).map(|c| c as f32)];
-    for i in 1..=rings {
-        for j in 0..segments {
-            let theta = std::f64::consts::TAU * j as f64 / segments as f64;
-            positions.push(place(i as f64 / rings as f64, theta).map(|c| c as f32));
-        }
-    }
-    let id = |i: usize, j: usize| (1 + (i - 1) * segments + j % segments) as u32;
-    let mut faces = Vec::new();
-    for j in 0..segments {
-        faces.push([0, id(1, j), id(1, j + 1)]);
-    }
-    for i in 1..rings {
-        for j in 0..segments {
-            faces.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
-            faces.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
-        }
-    }
-    Surface::from_triangles(positions, faces)
+    crate::uv_lscm::disc(rings, segments, 0.0, place)
 }
 
 /// A spherical cap of half-angle `degrees` on the unit sphere.

@@ -8,9 +8,15 @@
 use retex::engine::mesh::Surface;
 use retex::engine::uv::param::{chart_vertices, lscm};
 
-/// A disc of `rings × segments` plus a centre vertex, mapped by `place(ρ, θ)`, ρ in [0, 1], with
-/// a deterministic jitter of the ring radii and angles.
-fn disc(rings: usize, segments: usize, place: impl Fn(f64, f64) -> [f64; 3]) -> Surface {
+/// A disc of `rings × segments` plus a centre vertex, mapped by `place(ρ, θ)`, ρ in [0, 1], the
+/// inner rings' radii and every angle moved by up to `±amplitude / 2` of their spacing
+/// (deterministic; 0 gives the regular disc). Shared with `uv_arap`.
+pub(crate) fn disc(
+    rings: usize,
+    segments: usize,
+    amplitude: f64,
+    place: impl Fn(f64, f64) -> [f64; 3],
+) -> Surface {
     let mut positions = vec![place(0.0, 0.0).map(|c| c as f32)];
     let mut seed = 12_345u64;
     let mut jitter = || {
@@ -21,8 +27,9 @@ fn disc(rings: usize, segments: usize, place: impl Fn(f64, f64) -> [f64; 3]) -> 
     };
     for i in 1..=rings {
         for j in 0..segments {
-            let rho = (i as f64 + 0.3 * jitter() * f64::from(u8::from(i < rings))) / rings as f64;
-            let theta = std::f64::consts::TAU * (j as f64 + 0.3 * jitter()) / segments as f64;
+            let rho =
+                (i as f64 + amplitude * jitter() * f64::from(u8::from(i < rings))) / rings as f64;
+            let theta = std::f64::consts::TAU * (j as f64 + amplitude * jitter()) / segments as f64;
             positions.push(place(rho, theta).map(|c| c as f32));
         }
     }
@@ -236,7 +243,7 @@ fn solve(s: &Surface) -> Vec<[f64; 2]> {
 fn a_flat_chart_comes_back_as_its_own_layout_up_to_a_similarity() {
     // A tilted plane in 3-D, 40 rings × 90 segments: 3,601 vertices, 7,110 faces.
     let (u, v) = ([0.6f64, 0.0, 0.8], [0.0f64, 1.0, 0.0]);
-    let s = disc(40, 90, |rho, theta| {
+    let s = disc(40, 90, 0.3, |rho, theta| {
         let (a, b) = (2.0 * rho * theta.cos(), 1.3 * rho * theta.sin());
         [
             a * u[0] + b * v[0],
@@ -288,7 +295,7 @@ fn curved_charts_match_the_full_system_with_every_u_v_term() {
     ];
     for (name, place) in cases {
         // 12 rings × 30 segments: 361 vertices (718 unknowns), dissected at several levels.
-        let s = disc(12, 30, place);
+        let s = disc(12, 30, 0.3, place);
         let reference = dense_reference(&s);
         let ours = solve(&s);
         let extent = reference

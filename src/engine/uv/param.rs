@@ -388,11 +388,11 @@ fn solve_normal(
     rhs: &[f64],
 ) -> Option<Vec<f64>> {
     let sy = SymbolicCholesky::with_elimination_order(pattern.clone(), order).ok()?;
-    let exact = SymmetricMatrix::new(pattern.clone(), values.clone()).ok()?;
+    let exact = SymmetricMatrix::new(pattern.clone(), values).ok()?;
     let factor = match sy.factor_sequential(&exact) {
         Ok(f) => f,
         Err(_) => {
-            let mut shifted = values;
+            let mut shifted = exact.values().to_vec();
             let diagonal = pattern.diagonal_positions();
             let max_diag = diagonal.iter().map(|p| shifted[*p]).fold(0.0f64, f64::max);
             for p in diagonal {

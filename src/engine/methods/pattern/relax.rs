@@ -141,6 +141,11 @@ pub fn relax(texture: &PatternTexture, problem: &RelaxProblem, rng: &mut SplitMi
         0.0
     };
     let mut order: Vec<usize> = (0..n).filter(|&i| !vertex_seams[i].is_empty()).collect();
+    // A non-toroidal pattern's patches stay inside the image (§4.2), moved or not.
+    let (w, h) = (texture.width() as f32, texture.height() as f32);
+    let inside = |p: [f32; 2]| {
+        texture.toroidal() || ((0.0..=w).contains(&p[0]) && (0.0..=h).contains(&p[1]))
+    };
     for sweep in 0..SWEEPS {
         let step = radius / (1u32 << sweep) as f32;
         if step <= 0.0 {
@@ -155,11 +160,6 @@ pub fn relax(texture: &PatternTexture, problem: &RelaxProblem, rng: &mut SplitMi
                     .sum()
             };
             let mut current = local(&px);
-            // A non-toroidal pattern's patches stay inside the image (§4.2), moved or not.
-            let (w, h) = (texture.width() as f32, texture.height() as f32);
-            let inside = |p: [f32; 2]| {
-                texture.toroidal() || ((0.0..=w).contains(&p[0]) && (0.0..=h).contains(&p[1]))
-            };
             for _ in 0..TRIES {
                 let old = px[v];
                 let candidate = random_in_disc(old, step, rng);
