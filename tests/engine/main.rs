@@ -42,6 +42,7 @@ mod elastiface_landmarks;
 mod elastiface_real;
 mod elastiface_region;
 mod elastiface_shapes;
+mod fan_pruning;
 mod fuzz_ingest;
 mod geodesic_fans;
 mod geometry_core;

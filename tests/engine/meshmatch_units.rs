@@ -53,6 +53,8 @@ impl ShapeOnly {
                 source_allowed: None,
                 exclude: None,
                 source_penalty: &[],
+                target_ring_stats: &[],
+                source_ring_stats: &[],
             },
             target_adjacency: self.levels.rings(0),
             source_adjacency: self.levels.rings(0),

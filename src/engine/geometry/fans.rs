@@ -206,10 +206,116 @@ impl FanShape {
         }
         sum
     }
+
+    /// Floats of [`FanShape::ring_stats`] per fan: per ring, the mean sample and the norm of
+    /// the samples minus that mean.
+    pub fn stats_len(&self) -> usize {
+        self.rings * (self.dim + 1)
+    }
+
+    /// Rotation-invariant statistics of every fan in `fans` ([`FanShape::len`] floats each), for
+    /// [`FanShape::rotation_free_bound`]: per fan and ring, the `dim` channel means over the
+    /// spokes, then the Euclidean norm of the ring's samples minus those means.
+    pub fn ring_stats(&self, fans: &[f32]) -> Vec<f32> {
+        let (n, row) = (self.len(), self.spokes * self.dim);
+        if n == 0 {
+            return Vec::new();
+        }
+        let mut out = vec![0.0f32; fans.len() / n * self.stats_len()];
+        out.par_chunks_mut(self.dim + 1)
+            .zip(fans.par_chunks_exact(row))
+            .for_each(|(stats, ring)| {
+                let (mean, norm) = stats.split_at_mut(self.dim);
+                for sample in ring.chunks_exact(self.dim) {
+                    for (m, x) in mean.iter_mut().zip(sample) {
+                        *m += x;
+                    }
+                }
+                mean.iter_mut().for_each(|m| *m /= self.spokes as f32);
+                let mut sq = 0.0f32;
+                for sample in ring.chunks_exact(self.dim) {
+                    for (m, x) in mean.iter().zip(sample) {
+                        sq += (x - m) * (x - m);
+                    }
+                }
+                norm[0] = sq.sqrt();
+            });
+        out
+    }
+
+    /// A lower bound of [`FanShape::distance`]`(a, b, k)` for every rotation `k`, from the
+    /// fans' [`FanShape::ring_stats`]: per ring, `A‖μ_a − μ_b‖² + (‖ã‖ − ‖b̃‖)²`, with `μ` the
+    /// ring's mean sample and `ã` its samples minus the mean. Exact algebra: rotation permutes
+    /// the spokes, so the means and residual norms do not change, the cross term of mean and
+    /// residual is zero (residuals sum to zero), and `‖ã − R b̃‖ ≥ |‖ã‖ − ‖b̃‖|`.
+    pub fn rotation_free_bound(&self, sa: &[f32], sb: &[f32]) -> f32 {
+        let mut sum = 0.0f32;
+        for (ra, rb) in sa
+            .chunks_exact(self.dim + 1)
+            .zip(sb.chunks_exact(self.dim + 1))
+        {
+            let mut mean = 0.0f32;
+            for c in 0..self.dim {
+                mean += (ra[c] - rb[c]) * (ra[c] - rb[c]);
+            }
+            let norm = ra[self.dim] - rb[self.dim];
+            sum += self.spokes as f32 * mean + norm * norm;
+        }
+        sum
+    }
+
+    /// Floats of a fan whose rings are written twice ([`FanShape::double_rings`]).
+    pub fn doubled_len(&self) -> usize {
+        2 * self.len()
+    }
+
+    /// Writes `b` into `out` with every ring twice in a row, so the ring rotated by any `k`
+    /// spokes is one contiguous slice (for [`FanShape::distance_below_doubled`]).
+    ///
+    /// # Panics
+    /// If `b` does not hold [`FanShape::len`] floats or `out` not [`FanShape::doubled_len`].
+    pub fn double_rings(&self, b: &[f32], out: &mut [f32]) {
+        assert!(b.len() == self.len() && out.len() == self.doubled_len());
+        let row = self.spokes * self.dim;
+        if row == 0 {
+            return;
+        }
+        for (src, dst) in b.chunks_exact(row).zip(out.chunks_exact_mut(2 * row)) {
+            dst[..row].copy_from_slice(src);
+            dst[row..].copy_from_slice(src);
+        }
+    }
+
+    /// [`FanShape::distance_below`] with `b` given by [`FanShape::double_rings`]: each ring is
+    /// one contiguous comparison instead of two (the E-step's inner loop).
+    pub fn distance_below_doubled(&self, a: &[f32], b2: &[f32], k: usize, bound: f32) -> f32 {
+        assert!(
+            a.len() == self.len() && b2.len() == self.doubled_len(),
+            "fan lengths {} and {} do not match the shape's {} and {}",
+            a.len(),
+            b2.len(),
+            self.len(),
+            self.doubled_len()
+        );
+        let row = self.spokes * self.dim;
+        if row == 0 {
+            return 0.0;
+        }
+        let shift = (k % self.spokes.max(1)) * self.dim;
+        let mut sum = 0.0f32;
+        for (ar, br) in a.chunks_exact(row).zip(b2.chunks_exact(2 * row)) {
+            sum += squared_difference(ar, &br[shift..shift + row]);
+            if sum >= bound {
+                break;
+            }
+        }
+        sum
+    }
 }
 
 /// Sum of squared differences of two equally long slices, in 8 independent lanes (so it
 /// vectorizes); the lane order is fixed, so the result is deterministic.
+#[inline]
 fn squared_difference(a: &[f32], b: &[f32]) -> f32 {
     let mut lanes = [0.0f32; 8];
     let (ac, bc) = (a.chunks_exact(8), b.chunks_exact(8));

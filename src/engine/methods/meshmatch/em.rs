@@ -557,6 +557,8 @@ struct Level<'a> {
     /// Shape weight of this level.
     weight: f32,
     src_fans: Fans,
+    /// [`FanShape::ring_stats`] of `src_fans` (the E-step's candidate pruning).
+    src_ring_stats: Vec<f32>,
     tgt_sampler: FanSampler,
     stencil: VoteStencil,
     /// Normalized source colour per vertex.
@@ -782,6 +784,7 @@ impl<'a> CoarseToFine<'a> {
         } else {
             (Vec::new(), Vec::new())
         };
+        let src_ring_stats = src_fans.shape().ring_stats(&src_fans.data);
         Ok(Level {
             index: level,
             ns,
@@ -789,6 +792,7 @@ impl<'a> CoarseToFine<'a> {
             radius,
             weight,
             src_fans,
+            src_ring_stats,
             tgt_sampler,
             stencil,
             centers,
@@ -932,6 +936,7 @@ impl<'a> CoarseToFine<'a> {
                 control,
             )?;
             control.stage("E-step", 0)?;
+            let tgt_ring_stats = tgt_fans.shape().ring_stats(&tgt_fans.data);
             let penalty = usage_penalty(
                 nnf,
                 lv.ns,
@@ -951,6 +956,8 @@ impl<'a> CoarseToFine<'a> {
                     source_allowed: lv.allowed.as_deref(),
                     exclude: None,
                     source_penalty: &penalty,
+                    target_ring_stats: &tgt_ring_stats,
+                    source_ring_stats: &lv.src_ring_stats,
                 },
                 target_adjacency: tgt_levels.rings(level),
                 source_adjacency: src_levels.rings(level),

@@ -61,6 +61,13 @@ impl Nnf {
     }
 }
 
+/// Floats of a doubled source fan kept on the stack in [`PatchSpace::evaluate`].
+const DOUBLED_ON_STACK: usize = 512;
+
+/// A candidate is pruned when its rotation-free lower bound times this is not below the best
+/// distance so far (the bound's rounding error is far below 1e-3).
+const BOUND_MARGIN: f32 = 0.999;
+
 /// Features of both meshes on one level.
 #[derive(Clone, Copy)]
 pub struct PatchSpace<'a> {
@@ -80,6 +87,11 @@ pub struct PatchSpace<'a> {
     pub source_allowed: Option<&'a [bool]>,
     /// Candidates closer than a radius to the target vertex are refused (self-matching a mesh).
     pub exclude: Option<Exclusion<'a>>,
+    /// [`FanShape::ring_stats`] of the target fans, for pruning candidates by
+    /// [`FanShape::rotation_free_bound`] before any rotation is tried; empty: no pruning.
+    pub target_ring_stats: &'a [f32],
+    /// [`FanShape::ring_stats`] of the source fans (empty with the target's).
+    pub source_ring_stats: &'a [f32],
     /// Completeness: a cost added to every match of source vertex `s` (its over-use by the
     /// current field, see [`usage_penalty`]); empty: none.
     pub source_penalty: &'a [f32],
@@ -140,14 +152,36 @@ impl PatchSpace<'_> {
         if shape >= bound {
             return None;
         }
+        if !self.target_ring_stats.is_empty() {
+            let m = self.fan.stats_len();
+            let lower = self.fan.rotation_free_bound(
+                &self.target_ring_stats[t * m..(t + 1) * m],
+                &self.source_ring_stats[s * m..(s + 1) * m],
+            );
+            // The bound is exact algebra; the margin covers f32 rounding of both sides.
+            if lower * BOUND_MARGIN >= bound - shape {
+                return None;
+            }
+        }
         let n = self.fan.len();
         let a = &self.target_fans[t * n..(t + 1) * n];
         let b = &self.source_fans[s * n..(s + 1) * n];
         let spokes = self.fan.spokes as u16;
         let mut best: Option<(u16, f32)> = None;
         let mut limit = bound - shape;
+        // The source fan with its rings doubled, so every rotation of a ring is one contiguous
+        // comparison (on the stack for fans up to DOUBLED_ON_STACK floats, the default's 324).
+        let mut doubled = [0.0f32; DOUBLED_ON_STACK];
+        let b2 = (self.fan.doubled_len() <= DOUBLED_ON_STACK).then(|| {
+            let b2 = &mut doubled[..self.fan.doubled_len()];
+            self.fan.double_rings(b, b2);
+            &*b2
+        });
         let mut try_k = |k: u16| {
-            let d = self.fan.distance_below(a, b, k as usize, limit);
+            let d = match b2 {
+                Some(b2) => self.fan.distance_below_doubled(a, b2, k as usize, limit),
+                None => self.fan.distance_below(a, b, k as usize, limit),
+            };
             if d < limit {
                 limit = d;
                 best = Some((k, d + shape));
@@ -497,6 +531,8 @@ mod tests {
                     source_allowed: None,
                     exclude: None,
                     source_penalty: &[],
+                    target_ring_stats: &[],
+                    source_ring_stats: &[],
                 },
                 target_adjacency: (&rings.0, &rings.1),
                 source_adjacency: (&source_rings.0, &source_rings.1),
