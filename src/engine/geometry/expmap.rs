@@ -417,7 +417,8 @@ pub(crate) struct ChartBuilder {
     done: Vec<bool>,
     order_vertex: Vec<u32>,
     order_coords: Vec<[f32; 2]>,
-    heap: BinaryHeap<Reverse<(u32, u32)>>,
+    /// `(key << 32) | slot`: one integer compare orders by key, then slot (as the pair would).
+    heap: BinaryHeap<Reverse<u64>>,
 }
 
 impl ChartBuilder {
@@ -468,10 +469,10 @@ impl ChartBuilder {
         self.coords.push([0.0, 0.0]);
         self.axis.push([1.0, 0.0]);
         self.done.push(false);
-        self.heap.push(Reverse((0, 0)));
+        self.heap.push(Reverse(0));
         let radius2 = radius * radius;
-        while let Some(Reverse((key, r))) = self.heap.pop() {
-            let r = r as usize;
+        while let Some(Reverse(entry)) = self.heap.pop() {
+            let (key, r) = ((entry >> 32) as u32, entry as u32 as usize);
             if self.done[r] || key != dist_key(self.coords[r]) {
                 continue; // stale entry
             }
@@ -516,7 +517,7 @@ impl ChartBuilder {
                 let [tx, ty] = connection.transport[e];
                 let [ax, ay] = self.axis[r];
                 self.axis[qs] = [tx * ax - ty * ay, tx * ay + ty * ax];
-                self.heap.push(Reverse((ck, qs as u32)));
+                self.heap.push(Reverse(((ck as u64) << 32) | qs as u64));
             }
         }
         Chart {
