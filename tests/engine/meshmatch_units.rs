@@ -53,6 +53,7 @@ impl ShapeOnly {
                 source_allowed: None,
                 exclude: None,
                 source_penalty: &[],
+                ring_weights: &[],
                 target_ring_stats: &[],
                 source_ring_stats: &[],
             },

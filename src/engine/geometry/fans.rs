@@ -207,6 +207,16 @@ impl FanShape {
         sum
     }
 
+    /// Ring weights proportional to the surface area each ring's samples stand for: ring `i`
+    /// (radius `(i + 1)·h`) covers an annulus sector of area ∝ `i + 1`; normalized to mean 1,
+    /// `2(i + 1)/(R + 1)`.
+    pub fn area_ring_weights(&self) -> Vec<f32> {
+        let r = self.rings as f32;
+        (0..self.rings)
+            .map(|i| 2.0 * (i + 1) as f32 / (r + 1.0))
+            .collect()
+    }
+
     /// Floats of [`FanShape::ring_stats`] per fan: per ring, the mean sample and the norm of
     /// the samples minus that mean.
     pub fn stats_len(&self) -> usize {
@@ -248,18 +258,21 @@ impl FanShape {
     /// ring's mean sample and `ã` its samples minus the mean. Exact algebra: rotation permutes
     /// the spokes, so the means and residual norms do not change, the cross term of mean and
     /// residual is zero (residuals sum to zero), and `‖ã − R b̃‖ ≥ |‖ã‖ − ‖b̃‖|`.
-    pub fn rotation_free_bound(&self, sa: &[f32], sb: &[f32]) -> f32 {
+    /// `ring_weights` as in [`FanShape::distance_below_doubled`].
+    pub fn rotation_free_bound(&self, sa: &[f32], sb: &[f32], ring_weights: &[f32]) -> f32 {
         let mut sum = 0.0f32;
-        for (ra, rb) in sa
+        for (ring, (ra, rb)) in sa
             .chunks_exact(self.dim + 1)
             .zip(sb.chunks_exact(self.dim + 1))
+            .enumerate()
         {
             let mut mean = 0.0f32;
             for c in 0..self.dim {
                 mean += (ra[c] - rb[c]) * (ra[c] - rb[c]);
             }
             let norm = ra[self.dim] - rb[self.dim];
-            sum += self.spokes as f32 * mean + norm * norm;
+            let d = self.spokes as f32 * mean + norm * norm;
+            sum += ring_weights.get(ring).map_or(d, |w| w * d);
         }
         sum
     }
@@ -288,7 +301,16 @@ impl FanShape {
 
     /// [`FanShape::distance_below`] with `b` given by [`FanShape::double_rings`]: each ring is
     /// one contiguous comparison instead of two (the E-step's inner loop).
-    pub fn distance_below_doubled(&self, a: &[f32], b2: &[f32], k: usize, bound: f32) -> f32 {
+    ///
+    /// `ring_weights`: one factor per ring on that ring's sum (empty: every ring 1).
+    pub fn distance_below_doubled(
+        &self,
+        a: &[f32],
+        b2: &[f32],
+        k: usize,
+        bound: f32,
+        ring_weights: &[f32],
+    ) -> f32 {
         assert!(
             a.len() == self.len() && b2.len() == self.doubled_len(),
             "fan lengths {} and {} do not match the shape's {} and {}",
@@ -303,8 +325,13 @@ impl FanShape {
         }
         let shift = (k % self.spokes.max(1)) * self.dim;
         let mut sum = 0.0f32;
-        for (ar, br) in a.chunks_exact(row).zip(b2.chunks_exact(2 * row)) {
-            sum += squared_difference(ar, &br[shift..shift + row]);
+        for (ring, (ar, br)) in a
+            .chunks_exact(row)
+            .zip(b2.chunks_exact(2 * row))
+            .enumerate()
+        {
+            let d = squared_difference(ar, &br[shift..shift + row]);
+            sum += ring_weights.get(ring).map_or(d, |w| w * d);
             if sum >= bound {
                 break;
             }

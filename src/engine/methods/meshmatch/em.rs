@@ -937,6 +937,11 @@ impl<'a> CoarseToFine<'a> {
             )?;
             control.stage("E-step", 0)?;
             let tgt_ring_stats = tgt_fans.shape().ring_stats(&tgt_fans.data);
+            let ring_weights = if params.fan_area_weights {
+                tgt_fans.shape().area_ring_weights()
+            } else {
+                Vec::new()
+            };
             let penalty = usage_penalty(
                 nnf,
                 lv.ns,
@@ -956,6 +961,7 @@ impl<'a> CoarseToFine<'a> {
                     source_allowed: lv.allowed.as_deref(),
                     exclude: None,
                     source_penalty: &penalty,
+                    ring_weights: &ring_weights,
                     target_ring_stats: &tgt_ring_stats,
                     source_ring_stats: &lv.src_ring_stats,
                 },

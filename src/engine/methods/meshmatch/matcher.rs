@@ -11,6 +11,15 @@
 //! al. 2010, the speed-up the paper suggests in §5.5). Sums are abandoned ring by ring once they
 //! pass the best distance so far.
 //!
+//! **Area weights.** With `fan_area_weights` (default) ring `i` of the fan sum is weighted by
+//! `2(i + 1)/(R + 1)`, the share of the fan's disc its samples stand for, so the comparison is
+//! area-uniform like the paper's surface sampling (README: measured on real and synthetic pairs).
+//!
+//! **Pruning.** Before any rotation is compared, a candidate is refused when the rotation-free
+//! lower bound of its fan distance ([`FanShape::rotation_free_bound`]: per-ring means and
+//! residual norms) already reaches the best distance so far. The bound is exact algebra, so the
+//! field is the one the full search finds (test `fan_pruning`).
+//!
 //! **Propagation.** Target vertices are visited in breadth-first order from a start per connected
 //! component (random at first, then the last vertex of the previous sequence, the paper's
 //! alternating passes). Candidates are the current match and every source vertex adjacent to (or
@@ -92,6 +101,9 @@ pub struct PatchSpace<'a> {
     pub target_ring_stats: &'a [f32],
     /// [`FanShape::ring_stats`] of the source fans (empty with the target's).
     pub source_ring_stats: &'a [f32],
+    /// One factor per fan ring in the patch distance ([`FanShape::area_ring_weights`]);
+    /// empty: every ring 1.
+    pub ring_weights: &'a [f32],
     /// Completeness: a cost added to every match of source vertex `s` (its over-use by the
     /// current field, see [`usage_penalty`]); empty: none.
     pub source_penalty: &'a [f32],
@@ -131,6 +143,30 @@ impl PatchSpace<'_> {
         a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
     }
 
+    /// The weighted distance without the doubled copy (fans too large for the stack).
+    fn distance_undoubled(&self, a: &[f32], b: &[f32], k: usize, limit: f32) -> f32 {
+        if self.ring_weights.is_empty() {
+            return self.fan.distance_below(a, b, k, limit);
+        }
+        let per_ring = self.fan.len() / self.fan.rings.max(1);
+        let ring = FanShape {
+            rings: 1,
+            ..self.fan
+        };
+        let mut sum = 0.0f32;
+        for (w, (ar, br)) in self
+            .ring_weights
+            .iter()
+            .zip(a.chunks_exact(per_ring).zip(b.chunks_exact(per_ring)))
+        {
+            sum += w * ring.distance(ar, br, k);
+            if sum >= limit {
+                break;
+            }
+        }
+        sum
+    }
+
     /// The best rotation and dissimilarity of target `t` against source `s`, or `None` when it is
     /// not below `bound`.
     pub fn evaluate(
@@ -157,6 +193,7 @@ impl PatchSpace<'_> {
             let lower = self.fan.rotation_free_bound(
                 &self.target_ring_stats[t * m..(t + 1) * m],
                 &self.source_ring_stats[s * m..(s + 1) * m],
+                self.ring_weights,
             );
             // The bound is exact algebra; the margin covers f32 rounding of both sides.
             if lower * BOUND_MARGIN >= bound - shape {
@@ -179,8 +216,11 @@ impl PatchSpace<'_> {
         });
         let mut try_k = |k: u16| {
             let d = match b2 {
-                Some(b2) => self.fan.distance_below_doubled(a, b2, k as usize, limit),
-                None => self.fan.distance_below(a, b, k as usize, limit),
+                Some(b2) => {
+                    self.fan
+                        .distance_below_doubled(a, b2, k as usize, limit, self.ring_weights)
+                }
+                None => self.distance_undoubled(a, b, k as usize, limit),
             };
             if d < limit {
                 limit = d;
@@ -531,6 +571,7 @@ mod tests {
                     source_allowed: None,
                     exclude: None,
                     source_penalty: &[],
+                    ring_weights: &[],
                     target_ring_stats: &[],
                     source_ring_stats: &[],
                 },

@@ -279,6 +279,12 @@ pub struct MeshMatchParams {
     /// Search rotations around the propagated one instead of all `A` (Barnes et al. 2010).
     /// Default false (the paper's exhaustive search).
     pub randomized_rotations: bool,
+    /// Weight each fan ring in the patch distance by the surface area its samples stand for
+    /// (ring `i` of `R` at radius `(i + 1)·h` covers an annulus sector ∝ `i + 1`: weights
+    /// `2(i + 1)/(R + 1)`, mean 1), so the distance is area-uniform over the fan's disc as the
+    /// paper's surface sampling is. Default false (each sample counts once; see the README's
+    /// sweep).
+    pub fan_area_weights: bool,
     /// By-example mode (§5.3): which part of the target is painted. Default none.
     pub example: Option<ExampleMask>,
     /// Texture-update mode (§5.3, Figure 10): the target is an edited copy of the source; its
@@ -322,6 +328,7 @@ impl Default for MeshMatchParams {
             finest_vote_sigma: None,
             nearest_neighbor_final: true,
             randomized_rotations: false,
+            fan_area_weights: true,
             example: None,
             update: None,
             vertex_color_samples: shared.vertex_color_samples,
