@@ -220,7 +220,7 @@ fn voting_a_known_field_gives_the_known_colours() {
             rotation: vec![0; n],
             distance: vec![0.0; n],
         };
-        let voted = vote(&stencil, &nnf, &patches, 0.5 * radius, None);
+        let voted = vote(&stencil, &nnf, &patches, 0.5 * radius, None, None);
         let mut worst = 0.0f32;
         let mut count = 0;
         for (t, p) in s.positions.iter().enumerate() {

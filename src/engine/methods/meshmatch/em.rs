@@ -62,6 +62,7 @@ use crate::engine::rng::{mix, SplitMix64};
 
 use super::features::{automatic_features, geodesic_affinities, AffinityPair, AffinityReport};
 use super::fidelity::{measure, Fidelity, FidelityInput};
+use super::histogram::HistogramBias;
 use super::levels::MeshLevels;
 use super::matcher::{bfs_order, components, usage_penalty, EStep, Nnf, PatchSpace};
 use super::upsample::{upsample, Allowed, Side};
@@ -679,7 +680,7 @@ impl<'a> CoarseToFine<'a> {
         };
         let keep = lv.keep();
         let sigma = vote_sigma_at(params, level, self.levels - 1) * lv.radius;
-        let mut colors = vote(&lv.stencil, &nnf, &patches, sigma, keep);
+        let mut colors = vote(&lv.stencil, &nnf, &patches, sigma, keep, None);
         let (iterations, converged) = self.iterate(&lv, &patches, sigma, &mut nnf, &mut colors)?;
         if level == 0 && params.nearest_neighbor_final {
             self.control.stage("nearest-neighbour colours", 0)?;
@@ -982,7 +983,8 @@ impl<'a> CoarseToFine<'a> {
             let searched = step.random_search(nnf);
             let energy = nnf.energy();
             control.stage("vote", 0)?;
-            *colors = vote(&lv.stencil, nnf, patches, sigma, keep);
+            let bias = HistogramBias::new(&lv.centers, colors, params.histogram_weight);
+            *colors = vote(&lv.stencil, nnf, patches, sigma, keep, bias.as_ref());
             iterations.push(IterationReport {
                 energy,
                 propagated,

@@ -22,6 +22,7 @@ pub mod em;
 pub mod example;
 pub mod features;
 pub mod fidelity;
+pub mod histogram;
 pub mod levels;
 pub mod matcher;
 pub mod nnf_file;
@@ -285,6 +286,11 @@ pub struct MeshMatchParams {
     /// paper's surface sampling is. Default false (each sample counts once; see the README's
     /// sweep).
     pub fan_area_weights: bool,
+    /// Histogram matching in the vote (Kopf et al. 2007 §3.3, module `histogram`): votes for
+    /// colours over-represented in the target's current colours against the source's are
+    /// down-weighted with this strength. Default 0 (off; README sweep). Range: [0, 100].
+    #[schemars(range(min = 0, max = 100))]
+    pub histogram_weight: f32,
     /// By-example mode (§5.3): which part of the target is painted. Default none.
     pub example: Option<ExampleMask>,
     /// Texture-update mode (§5.3, Figure 10): the target is an edited copy of the source; its
@@ -329,6 +335,7 @@ impl Default for MeshMatchParams {
             nearest_neighbor_final: true,
             randomized_rotations: false,
             fan_area_weights: true,
+            histogram_weight: 0.0,
             example: None,
             update: None,
             vertex_color_samples: shared.vertex_color_samples,

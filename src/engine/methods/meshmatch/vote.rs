@@ -18,6 +18,7 @@ use rayon::prelude::*;
 use crate::engine::geometry::expmap::ExpMap;
 use crate::engine::mesh::csr::group_by_key;
 
+use super::histogram::HistogramBias;
 use super::matcher::Nnf;
 
 /// For every target vertex `q`: the vertices `p` whose chart contains it and `q`'s polar
@@ -116,12 +117,15 @@ impl SourcePatches<'_> {
 
 /// Votes target colours from the field (see the module docs). `sigma` is the Gaussian's
 /// standard deviation in world units. Vertices in `keep` (by-example mode) keep `previous`.
+/// With `bias`, every vote's weight is also multiplied by its colour's histogram factor
+/// ([`HistogramBias::factor`]).
 pub fn vote(
     stencil: &VoteStencil,
     nnf: &Nnf,
     source: &SourcePatches<'_>,
     sigma: f32,
     keep: Option<(&[bool], &[[f32; 3]])>,
+    bias: Option<&HistogramBias>,
 ) -> Vec<[f32; 3]> {
     let n = stencil.offsets.len() - 1;
     let inv = 1.0 / (2.0 * sigma * sigma);
@@ -141,8 +145,8 @@ pub fn vote(
                 let p = stencil.voter[e] as usize;
                 let s = nnf.source[p] as usize;
                 let [r, theta] = stencil.polar[e];
-                let w = (-r * r * inv).exp();
                 let c = source.color(s, r, theta + nnf.rotation[p] as f32 * step);
+                let w = (-r * r * inv).exp() * bias.map_or(1.0, |b| b.factor(c));
                 for k in 0..3 {
                     sum[k] += w * c[k];
                 }
