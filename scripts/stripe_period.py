@@ -1,0 +1,40 @@
+#!/usr/bin/env python3
+"""Stripe period of a MeshMatch output on the striped capsule pair of `retex bench --method
+meshmatch` (README, issue 14 item 2): grey crossings counted along 16 lines of the cylinder
+(x axis, radius 0.5) in the unstretched window x in [0.2, 1.8] and the stretched one [2.4, 5.6],
+the median line reported as a multiple of the source period 0.5. Needs COLOR_0 in the output
+(`"output": {"vertex_colors": true}`). Usage: stripe_period.py OUT.glb"""
+import json,struct,sys,numpy as np
+def load(path):
+    b=open(path,'rb').read()
+    jl=struct.unpack('<I',b[12:16])[0]; js=json.loads(b[20:20+jl]); off=20+jl
+    bl=struct.unpack('<I',b[off:off+4])[0]; bin_=b[off+8:off+8+bl]
+    prim=js['meshes'][0]['primitives'][0]
+    def acc(i):
+        a=js['accessors'][i]; bv=js['bufferViews'][a['bufferView']]
+        comp={5126:np.float32,5121:np.uint8,5123:np.uint16,5125:np.uint32}[a['componentType']]
+        n={'SCALAR':1,'VEC2':2,'VEC3':3,'VEC4':4}[a['type']]
+        start=bv.get('byteOffset',0)+a.get('byteOffset',0)
+        stride=bv.get('byteStride',0) or n*np.dtype(comp).itemsize
+        raw=np.frombuffer(bin_,dtype=np.uint8,count=stride*a['count'],offset=start).reshape(a['count'],stride)
+        arr=raw[:,:n*np.dtype(comp).itemsize].copy().view(comp).reshape(a['count'],n).astype(np.float64)
+        if a.get('normalized'): arr/=np.iinfo(comp).max
+        return arr
+    P=acc(prim['attributes']['POSITION']); C=acc(prim['attributes']['COLOR_0'])
+    return P,C[:,:3].mean(1)
+def crossings(x,g,lo,hi):
+    m=(x>=lo)&(x<=hi); xs=x[m]; gs=g[m]; o=np.argsort(xs); xs,gs=xs[o],gs[o]
+    t=0.5*(gs.max()+gs.min()); s=gs>t
+    # smooth small flicker: count sign changes
+    return int(np.sum(s[1:]!=s[:-1]))
+P,g=load(sys.argv[1])
+r=np.hypot(P[:,1],P[:,2]); ang=np.arctan2(P[:,2],P[:,1])
+res={'unstretched':[], 'stretched':[]}
+for k in range(16):
+    th=-np.pi+2*np.pi*k/16
+    d=np.abs((ang-th+np.pi)%(2*np.pi)-np.pi)
+    m=(d<0.02)&(r>0.45)
+    for name,(lo,hi) in {'unstretched':(0.2,1.8),'stretched':(2.4,5.6)}.items():
+        c=crossings(P[m,0],g[m],lo,hi)
+        res[name].append(2*(hi-lo)/max(c,1)/0.5)
+print(sys.argv[1], {k:round(float(np.median(v)),2) for k,v in res.items()})
