@@ -441,6 +441,15 @@ fn bad_parameters_name_their_field() {
         (serde_json::json!({"iterations": 0}), "params.iterations"),
         (serde_json::json!({"samplez": 100}), "params"),
         (
+            serde_json::json!({"histogram_weight": -1}),
+            "params.histogram_weight",
+        ),
+        (
+            serde_json::json!({"histogram_weight": 1000}),
+            "params.histogram_weight",
+        ),
+        (serde_json::json!({"fan_area_weights": "yes"}), "params"),
+        (
             serde_json::json!({"example": {"vertex_color": {"channel": "q", "threshold": 0.5}}}),
             "params.example",
         ),
