@@ -143,30 +143,6 @@ impl PatchSpace<'_> {
         a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
     }
 
-    /// The weighted distance without the doubled copy (fans too large for the stack).
-    fn distance_undoubled(&self, a: &[f32], b: &[f32], k: usize, limit: f32) -> f32 {
-        if self.ring_weights.is_empty() {
-            return self.fan.distance_below(a, b, k, limit);
-        }
-        let per_ring = self.fan.len() / self.fan.rings.max(1);
-        let ring = FanShape {
-            rings: 1,
-            ..self.fan
-        };
-        let mut sum = 0.0f32;
-        for (w, (ar, br)) in self
-            .ring_weights
-            .iter()
-            .zip(a.chunks_exact(per_ring).zip(b.chunks_exact(per_ring)))
-        {
-            sum += w * ring.distance(ar, br, k);
-            if sum >= limit {
-                break;
-            }
-        }
-        sum
-    }
-
     /// The best rotation and dissimilarity of target `t` against source `s`, or `None` when it is
     /// not below `bound`.
     pub fn evaluate(
@@ -207,21 +183,21 @@ impl PatchSpace<'_> {
         let mut best: Option<(u16, f32)> = None;
         let mut limit = bound - shape;
         // The source fan with its rings doubled, so every rotation of a ring is one contiguous
-        // comparison (on the stack for fans up to DOUBLED_ON_STACK floats, the default's 324).
-        let mut doubled = [0.0f32; DOUBLED_ON_STACK];
-        let b2 = (self.fan.doubled_len() <= DOUBLED_ON_STACK).then(|| {
-            let b2 = &mut doubled[..self.fan.doubled_len()];
-            self.fan.double_rings(b, b2);
-            &*b2
-        });
+        // comparison (on the stack for fans up to DOUBLED_ON_STACK floats, the default's 324;
+        // on the heap for larger fans).
+        let (mut on_stack, mut on_heap) = ([0.0f32; DOUBLED_ON_STACK], Vec::new());
+        let b2: &mut [f32] = if self.fan.doubled_len() <= DOUBLED_ON_STACK {
+            &mut on_stack[..self.fan.doubled_len()]
+        } else {
+            on_heap.resize(self.fan.doubled_len(), 0.0);
+            &mut on_heap
+        };
+        self.fan.double_rings(b, b2);
+        let b2 = &*b2;
         let mut try_k = |k: u16| {
-            let d = match b2 {
-                Some(b2) => {
-                    self.fan
-                        .distance_below_doubled(a, b2, k as usize, limit, self.ring_weights)
-                }
-                None => self.distance_undoubled(a, b, k as usize, limit),
-            };
+            let d = self
+                .fan
+                .distance_below_doubled(a, b2, k as usize, limit, self.ring_weights);
             if d < limit {
                 limit = d;
                 best = Some((k, d + shape));
