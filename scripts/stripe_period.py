@@ -2,7 +2,8 @@
 """Stripe period of a MeshMatch output on the striped capsule pair of `retex bench --method
 meshmatch` (README, issue 14 item 2): grey crossings counted along 16 lines of the cylinder
 (x axis, radius 0.5) in the unstretched window x in [0.2, 1.8] and the stretched one [2.4, 5.6],
-the median line reported as a multiple of the source period 0.5. Needs COLOR_0 in the output
+the median line reported as a multiple of the source period 0.5 (per line: twice the distance
+between the first and last interpolated crossing over the crossings between them). Needs COLOR_0 in the output
 (`"output": {"vertex_colors": true}`). Usage: stripe_period.py OUT.glb"""
 import json,struct,sys,numpy as np
 def load(path):
@@ -23,10 +24,14 @@ def load(path):
     P=acc(prim['attributes']['POSITION']); C=acc(prim['attributes']['COLOR_0'])
     return P,C[:,:3].mean(1)
 def crossings(x,g,lo,hi):
+    """Stripe period on one line: grey threshold crossings (linearly interpolated) in [lo, hi],
+    2 x (last - first) / (count - 1), so the window's ends do not quantize it."""
     m=(x>=lo)&(x<=hi); xs=x[m]; gs=g[m]; o=np.argsort(xs); xs,gs=xs[o],gs[o]
     t=0.5*(gs.max()+gs.min()); s=gs>t
-    # smooth small flicker: count sign changes
-    return int(np.sum(s[1:]!=s[:-1]))
+    i=np.nonzero(s[1:]!=s[:-1])[0]
+    if len(i)<2: return 2*(hi-lo)
+    xc=xs[i]+(t-gs[i])/(gs[i+1]-gs[i])*(xs[i+1]-xs[i])
+    return 2*(xc[-1]-xc[0])/(len(xc)-1)
 P,g=load(sys.argv[1])
 r=np.hypot(P[:,1],P[:,2]); ang=np.arctan2(P[:,2],P[:,1])
 res={'unstretched':[], 'stretched':[]}
@@ -35,6 +40,5 @@ for k in range(16):
     d=np.abs((ang-th+np.pi)%(2*np.pi)-np.pi)
     m=(d<0.02)&(r>0.45)
     for name,(lo,hi) in {'unstretched':(0.2,1.8),'stretched':(2.4,5.6)}.items():
-        c=crossings(P[m,0],g[m],lo,hi)
-        res[name].append(2*(hi-lo)/max(c,1)/0.5)
+        res[name].append(crossings(P[m,0],g[m],lo,hi)/0.5)
 print(sys.argv[1], {k:round(float(np.median(v)),2) for k,v in res.items()})

@@ -28,6 +28,7 @@ pub mod matcher;
 pub mod nnf_file;
 pub mod run;
 pub mod sampling;
+pub mod scale;
 pub mod update;
 pub mod upsample;
 pub mod vote;
@@ -193,9 +194,13 @@ pub enum ShapeFeatures {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum ScaleMode {
-    /// Scale the source so both surfaces have the same area (texture features keep their size
-    /// relative to the whole model). Default.
+    /// Scale the source by the median, over the principal axes, of the target's extent over
+    /// the source's (a stretch along one axis keeps the pattern's size; a uniformly larger
+    /// model gets a larger pattern). Default.
     #[default]
+    MatchExtents,
+    /// Scale the source so both surfaces have the same area (texture features keep their size
+    /// relative to the whole model).
     MatchArea,
     /// Keep world units (texture features keep their absolute size).
     World,
@@ -216,7 +221,7 @@ pub struct MeshMatchParams {
     /// unit area after scaling), at most 4 × `samples` and 262,144.
     #[schemars(range(min = 256, max = MAX_SAMPLES))]
     pub source_samples: Option<usize>,
-    /// Relative size of the meshes. Default `match_area`.
+    /// Relative size of the meshes. Default `match_extents`.
     pub scale: ScaleMode,
     /// Vertices of the coarsest level. Default 128 (paper).
     #[schemars(range(min = 16, max = 100_000))]
@@ -316,7 +321,7 @@ impl Default for MeshMatchParams {
         Self {
             samples: 65_536,
             source_samples: None,
-            scale: ScaleMode::MatchArea,
+            scale: ScaleMode::MatchExtents,
             min_vertices: 128,
             iterations: 5,
             convergence: 0.01,

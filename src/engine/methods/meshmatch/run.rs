@@ -30,6 +30,7 @@ use super::em::{synthesize, Copied, MatchInput, MatchReport, Mode, PointPair};
 use super::example::painted_vertices;
 use super::nnf_file::NnfFile;
 use super::sampling::{input_color, synthesis_colors, synthesis_mesh};
+use super::scale::extent_ratio;
 use super::update::{copied_region, CopiedRegion, CopySource};
 use super::{MeshMatchError, MeshMatchParams, ScaleMode};
 use crate::engine::texture::sample::MaterialSampler;
@@ -182,6 +183,9 @@ pub fn run(
     let scale = match (params.scale, same_units) {
         (_, true) | (ScaleMode::World, _) => 1.0f32,
         (ScaleMode::MatchArea, false) => (area_t / area_s).sqrt() as f32,
+        (ScaleMode::MatchExtents, false) => {
+            extent_ratio(&src_surface, &tgt_surface).unwrap_or((area_t / area_s).sqrt()) as f32
+        }
     };
     let source_samples = if by_example {
         params.samples
