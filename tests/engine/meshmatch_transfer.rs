@@ -121,15 +121,19 @@ fn spot_correspondences() -> serde_json::Value {
 /// Self transfer: Spot onto its isotropic remesh with 8 correspondences. The ground truth is
 /// `project` on the same pair (the remesh lies within 0.66% mean / 3.9% max of the original).
 /// MeshMatch synthesizes rather than copies, so the comparison is of low-passed luminance:
-/// measured correlation 0.66 with the default shape weight (threshold 0.6) and 0.85 with shape
-/// weight 4 (threshold 0.78), with 16K samples. Patch fidelity is reported and bounded: coherence
-/// within 3× the source's own self-match distance, completeness over 50%.
+/// measured correlation 0.73 with the default shape weight (threshold 0.6) and 0.88 with shape
+/// weight 4 (threshold 0.78), with 16K samples; the same synthesis without shape features (the
+/// layout left free: the right colours in the wrong places) measures 0.01 and must fail the
+/// threshold. Patch fidelity is reported and bounded: coherence within 3× the source's own
+/// self-match distance, completeness over 50%. `project` is the ground truth of a self
+/// transfer, so no threshold here can fail it; the stripes and texture-update tests do (it
+/// stretches the period ×1.83 and ×1.80).
 #[test]
 fn self_transfer_with_correspondences_follows_the_ground_truth() {
     let corr = spot_correspondences();
     let (sn, sb) = bytes(SPOT);
     let (tn, tb) = bytes(SPOT_REMESHED);
-    let out = |method: &str, shape_weight: f32| {
+    let run_with = |method: &str, shape_weight: f32, features: &str| {
         run_bytes(
             (&sn, sb.clone()),
             (&tn, tb.clone()),
@@ -138,12 +142,13 @@ fn self_transfer_with_correspondences_follows_the_ground_truth() {
             "output": {"vertex_colors": true},
             "params": if method == "meshmatch" {
                 serde_json::json!({"samples": 16384, "snap_tolerance": 0.06, "measure_fidelity": true,
-                                   "shape_weight": shape_weight})
+                                   "shape_weight": shape_weight, "shape_features": features})
             } else {
                 serde_json::json!({"snap_tolerance": 0.06})
             }}),
         )
     };
+    let out = |method: &str, shape_weight: f32| run_with(method, shape_weight, "auto");
     let gt = out("project", 0.0);
     let b = colored_points(&gt.model);
     let lum = |pts: &[([f32; 3], [f32; 3])]| -> Vec<f32> {
@@ -168,6 +173,13 @@ fn self_transfer_with_correspondences_follows_the_ground_truth() {
         "low-passed luminance correlation {r:.3} (shape weight 4: {r_strong:.3}); fidelity {f}"
     );
     assert!(r >= 0.6, "correlation {r:.3}");
+    // The negative control: the same synthesis without shape features draws the source's
+    // patches with no regard to where they belong, and the threshold must fail it.
+    let free = run_with("meshmatch", 2.0, "none");
+    let a = colored_points(&free.model);
+    let r_free = pearson(&low_pass(&lum(&a), tris), &low_pass(&lum(&b), tris));
+    eprintln!("without shape features (negative control): correlation {r_free:.3}");
+    assert!(r_free < 0.6, "negative control correlation {r_free:.3}");
     assert!(
         r_strong >= 0.78,
         "correlation with shape weight 4: {r_strong:.3}"
