@@ -1,7 +1,8 @@
-//! Issue 14 item 2: the default `scale: match_extents` keeps the source's units when the target
-//! is the source stretched along one axis (the unedited part keeps its pattern size), and still
-//! follows a uniform change of size; `match_area` (the old default) scales a stretched target's
-//! pattern up by √(area ratio). Read from the report's `source_scale` of whole transfers.
+//! Issue 14 item 2: `scale: match_extents`, and so the default `auto` (the smaller of it and
+//! `match_area`), keeps the source's units when the target is the source stretched along one
+//! axis (the unedited part keeps its pattern size), and still follows a uniform change of size;
+//! `match_area` (the old default) scales a stretched target's pattern up by √(area ratio).
+//! Read from the report's `source_scale` of whole transfers.
 
 use crate::meshmatch_common::{capsule, glb_of, run_bytes};
 
@@ -46,7 +47,7 @@ fn extents_scale_keeps_units_on_a_stretch_and_follows_a_uniform_resize() {
     println!("stretched target: match_extents {extents:.4}, match_area {area:.4}");
     assert!((extents - 1.0).abs() < 0.02, "match_extents {extents}");
     assert!(area > 1.15, "match_area {area}");
-    // Default is match_extents.
+    // The default, auto, is the smaller of the two.
     let out = run_bytes(
         ("source.glb", source.clone()),
         ("target.glb", stretched),
@@ -54,11 +55,15 @@ fn extents_scale_keeps_units_on_a_stretch_and_follows_a_uniform_resize() {
             "params": {"samples": 1024}}),
     );
     let default = out.report.method_report["source_scale"].as_f64().unwrap();
-    assert!((default - extents).abs() < 1e-9, "default {default}");
-    // The whole capsule 3× larger: both modes measure 3.
+    assert!(
+        (default - extents.min(area)).abs() < 1e-9,
+        "default {default}"
+    );
+    assert!((default - 1.0).abs() < 0.02, "default {default}");
+    // The whole capsule 3× larger: every mode measures 3.
     let big: Vec<[f32; 3]> = sp.iter().map(|p| p.map(|c| 3.0 * c)).collect();
     let scaled = glb_of(&big, &st, None);
-    for mode in ["match_extents", "match_area"] {
+    for mode in ["match_extents", "match_area", "auto"] {
         let s = source_scale(&source, &scaled, mode);
         assert!((s - 3.0).abs() < 0.03, "{mode} {s}");
     }

@@ -194,10 +194,14 @@ pub enum ShapeFeatures {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum ScaleMode {
+    /// The smaller of `match_extents` and `match_area`: a stretch along one axis keeps the
+    /// pattern's size, and a target slenderer than the source does not get oversized features.
+    /// Default.
+    #[default]
+    Auto,
     /// Scale the source by the median, over the principal axes, of the target's extent over
     /// the source's (a stretch along one axis keeps the pattern's size; a uniformly larger
-    /// model gets a larger pattern). Default.
-    #[default]
+    /// model gets a larger pattern).
     MatchExtents,
     /// Scale the source so both surfaces have the same area (texture features keep their size
     /// relative to the whole model).
@@ -221,7 +225,7 @@ pub struct MeshMatchParams {
     /// unit area after scaling), at most 4 × `samples` and 262,144.
     #[schemars(range(min = 256, max = MAX_SAMPLES))]
     pub source_samples: Option<usize>,
-    /// Relative size of the meshes. Default `match_extents`.
+    /// Relative size of the meshes. Default `auto`.
     pub scale: ScaleMode,
     /// Vertices of the coarsest level. Default 128 (paper).
     #[schemars(range(min = 16, max = 100_000))]
@@ -321,7 +325,7 @@ impl Default for MeshMatchParams {
         Self {
             samples: 65_536,
             source_samples: None,
-            scale: ScaleMode::MatchExtents,
+            scale: ScaleMode::Auto,
             min_vertices: 128,
             iterations: 5,
             convergence: 0.01,

@@ -182,9 +182,14 @@ pub fn run(
     let same_units = by_example || params.update.is_some();
     let scale = match (params.scale, same_units) {
         (_, true) | (ScaleMode::World, _) => 1.0f32,
-        (ScaleMode::MatchArea, false) => (area_t / area_s).sqrt() as f32,
-        (ScaleMode::MatchExtents, false) => {
-            extent_ratio(&src_surface, &tgt_surface).unwrap_or((area_t / area_s).sqrt()) as f32
+        (mode, false) => {
+            let area = (area_t / area_s).sqrt();
+            let extents = extent_ratio(&src_surface, &tgt_surface).unwrap_or(area);
+            match mode {
+                ScaleMode::MatchArea => area as f32,
+                ScaleMode::MatchExtents => extents as f32,
+                _ => area.min(extents) as f32,
+            }
         }
     };
     let source_samples = if by_example {
