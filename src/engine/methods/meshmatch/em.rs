@@ -67,6 +67,7 @@ use super::levels::MeshLevels;
 use super::matcher::{bfs_order, components, usage_penalty, EStep, Nnf, PatchSpace};
 use super::upsample::{upsample, Allowed, Side};
 use super::vote::{nearest_neighbour_colors, vote, SourcePatches, VoteStencil};
+use super::vote_schedule::VoteSchedule;
 use super::{MeshMatchError, MeshMatchParams, ShapeFeatures};
 
 /// Most vertices per fan chart: an even mesh has about 75 within the fan radius plus the filter
@@ -172,6 +173,9 @@ pub struct MatchReport {
     pub shape_dims: usize,
     /// Which features were used.
     pub features: &'static str,
+    /// The vote's σ on the coarsest and finest levels and the histogram strength, as resolved
+    /// from the params and the features.
+    pub vote: VoteSchedule,
     /// The correspondence transform, when affinities were used.
     pub affinity: Option<AffinityReport>,
     /// Coherence, source self-match and completeness (with `measure_fidelity`).
@@ -213,6 +217,17 @@ struct Shapes {
     kind: &'static str,
 }
 
+/// Which shape features a synthesis uses: (HKS + up, geodesic affinities).
+fn feature_kinds(params: &MeshMatchParams, correspondences: bool) -> (bool, bool) {
+    match params.shape_features {
+        ShapeFeatures::Auto => (!correspondences, correspondences),
+        ShapeFeatures::Automatic => (true, false),
+        ShapeFeatures::Affinity => (false, true),
+        ShapeFeatures::Both => (true, true),
+        ShapeFeatures::None => (false, false),
+    }
+}
+
 fn shape_features(
     input: &MatchInput<'_>,
     src: &MeshLevels,
@@ -220,16 +235,7 @@ fn shape_features(
     params: &MeshMatchParams,
     control: &Control,
 ) -> Result<Shapes, MeshMatchError> {
-    let use_affinity = match params.shape_features {
-        ShapeFeatures::Auto => !input.correspondences.is_empty(),
-        ShapeFeatures::Affinity | ShapeFeatures::Both => true,
-        ShapeFeatures::Automatic | ShapeFeatures::None => false,
-    };
-    let use_auto = match params.shape_features {
-        ShapeFeatures::Auto => input.correspondences.is_empty(),
-        ShapeFeatures::Automatic | ShapeFeatures::Both => true,
-        ShapeFeatures::Affinity | ShapeFeatures::None => false,
-    };
+    let (use_auto, use_affinity) = feature_kinds(params, !input.correspondences.is_empty());
     if use_affinity && input.correspondences.is_empty() {
         return Err(MeshMatchError::Param {
             name: "shape_features",
@@ -350,8 +356,11 @@ pub fn synthesize(
 
     let normalization = Normalization::new(input, &src_levels, &shapes);
     let masks = ExampleMasks::new(input, tgt_levels, normalization.color_std)?;
+    let (hks, affinity) = feature_kinds(params, !input.correspondences.is_empty());
+    let schedule = VoteSchedule::resolve(params, hks, affinity);
     let run = CoarseToFine {
         params,
+        schedule,
         seed,
         control,
         src: &src_levels,
@@ -380,6 +389,7 @@ pub fn synthesize(
             levels: reports,
             shape_dims: shapes.dim,
             features: shapes.kind,
+            vote: schedule,
             affinity: shapes.affinity,
             fidelity,
             warnings,
@@ -536,6 +546,8 @@ pub fn fan_inside(mask: &[bool], charts: &ExpMap) -> Vec<bool> {
 /// What every level of the coarse-to-fine loop reads.
 struct CoarseToFine<'a> {
     params: &'a MeshMatchParams,
+    /// The vote's σ per level and histogram strength.
+    schedule: VoteSchedule,
     seed: u64,
     control: &'a Control,
     src: &'a MeshLevels,
@@ -679,7 +691,7 @@ impl<'a> CoarseToFine<'a> {
             centers: &lv.centers,
         };
         let keep = lv.keep();
-        let sigma = vote_sigma_at(params, level, self.levels - 1) * lv.radius;
+        let sigma = self.schedule.sigma_at(level, self.levels - 1) * lv.radius;
         let mut colors = vote(&lv.stencil, &nnf, &patches, sigma, keep, None);
         let (iterations, converged) = self.iterate(&lv, &patches, sigma, &mut nnf, &mut colors)?;
         if level == 0 && params.nearest_neighbor_final {
@@ -983,7 +995,7 @@ impl<'a> CoarseToFine<'a> {
             let searched = step.random_search(nnf);
             let energy = nnf.energy();
             control.stage("vote", 0)?;
-            let bias = HistogramBias::new(&lv.centers, colors, params.histogram_weight);
+            let bias = HistogramBias::new(&lv.centers, colors, self.schedule.histogram_weight);
             *colors = vote(&lv.stencil, nnf, patches, sigma, keep, bias.as_ref());
             iterations.push(IterationReport {
                 energy,
@@ -998,18 +1010,6 @@ impl<'a> CoarseToFine<'a> {
         }
         Ok((iterations, converged))
     }
-}
-
-/// Vote width of `level` (fan radii): `vote_sigma` on the coarsest level, `finest_vote_sigma` on
-/// level 0, geometric in between.
-fn vote_sigma_at(params: &MeshMatchParams, level: usize, top: usize) -> f32 {
-    let coarse = params.vote_sigma;
-    let fine = params.finest_vote_sigma.unwrap_or(coarse);
-    if top == 0 {
-        return fine;
-    }
-    let t = level as f32 / top as f32;
-    fine * (coarse / fine).powf(t)
 }
 
 /// Shape weight of `level`: `shape_weight` on the coarsest level, `finest_shape_weight` on level 0,

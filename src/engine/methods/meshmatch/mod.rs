@@ -32,6 +32,7 @@ pub mod scale;
 pub mod update;
 pub mod upsample;
 pub mod vote;
+pub mod vote_schedule;
 
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
@@ -273,14 +274,13 @@ pub struct MeshMatchParams {
     /// the source instead of piling onto its most common patches (see `em`). 0 turns it off.
     #[schemars(range(min = 0, max = 100))]
     pub completeness_weight: f32,
-    /// Vote Gaussian σ as a fraction of the fan radius (on the coarsest level when
-    /// `finest_vote_sigma` is set). Default 0.5.
+    /// Vote Gaussian σ as a fraction of the fan radius, on the coarsest level (on every level
+    /// when `finest_vote_sigma` is not set). Default: by the shape features (module
+    /// `vote_schedule`): 0.1 with HKS features alone, 0.5 with affinities or none.
     #[schemars(range(max = 10), extend("exclusiveMinimum" = 0))]
-    pub vote_sigma: f32,
-    /// Vote σ on the finest level (geometric in between). Default: `vote_sigma` on every level.
-    /// A small σ on some levels keeps the source's colour proportions on real pairs but breaks
-    /// the stripe, band and by-example tests (README, meshmatch, "Colour proportions"), so it
-    /// is an option, not the default.
+    pub vote_sigma: Option<f32>,
+    /// Vote σ on the finest level (geometric in between). Default: 0.5 (with HKS features
+    /// alone, when `vote_sigma` is not set), else `vote_sigma` on every level.
     #[schemars(range(max = 10), extend("exclusiveMinimum" = 0))]
     pub finest_vote_sigma: Option<f32>,
     /// Copy the matched colour at the finest level instead of voting (paper's last step).
@@ -292,14 +292,16 @@ pub struct MeshMatchParams {
     /// Weight each fan ring in the patch distance by the surface area its samples stand for
     /// (ring `i` of `R` at radius `(i + 1)·h` covers an annulus sector ∝ `i + 1`: weights
     /// `2(i + 1)/(R + 1)`, mean 1), so the distance is area-uniform over the fan's disc as the
-    /// paper's surface sampling is. Default false (each sample counts once; see the README's
-    /// sweep).
+    /// paper's surface sampling is. Default true (false: each sample counts once; see the
+    /// README's sweep).
     pub fan_area_weights: bool,
     /// Histogram matching in the vote (Kopf et al. 2007 §3.3, module `histogram`): votes for
     /// colours over-represented in the target's current colours against the source's are
-    /// down-weighted with this strength. Default 0 (off; README sweep). Range: [0, 100].
+    /// down-weighted with this strength. Default: by the shape features (module
+    /// `vote_schedule`): 4 with HKS features alone, 0 (off) with affinities or none. Range:
+    /// [0, 100].
     #[schemars(range(min = 0, max = 100))]
-    pub histogram_weight: f32,
+    pub histogram_weight: Option<f32>,
     /// By-example mode (§5.3): which part of the target is painted. Default none.
     pub example: Option<ExampleMask>,
     /// Texture-update mode (§5.3, Figure 10): the target is an edited copy of the source; its
@@ -339,12 +341,12 @@ impl Default for MeshMatchParams {
             shape_weight: 2.0,
             finest_shape_weight: None,
             completeness_weight: 0.0,
-            vote_sigma: 0.5,
+            vote_sigma: None,
             finest_vote_sigma: None,
             nearest_neighbor_final: true,
             randomized_rotations: false,
             fan_area_weights: true,
-            histogram_weight: 0.0,
+            histogram_weight: None,
             example: None,
             update: None,
             vertex_color_samples: shared.vertex_color_samples,
