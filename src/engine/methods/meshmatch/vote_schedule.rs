@@ -8,8 +8,9 @@
 //! geodesic affinities (correspondences) that layout is the correspondences' stretch, so a
 //! stretched neck keeps stretched stripes (×1.37 where the wide vote gives ×1.03, test
 //! `meshmatch_stripes`); HKS features do not pin the layout, and the stretch cases without
-//! correspondences keep their period with either (×1.09-1.25 against ×1.05-1.31 on the 64K
-//! capsule and bar, seeds 1-2). So when nothing is set the schedule depends on the features:
+//! correspondences mostly keep their period with either (64K capsule and square bar, seeds
+//! 1-5: 7 of 10 runs within issue 14's item-2 bounds, 8 of 10 with the wide vote; README).
+//! So when nothing is set the schedule depends on the features:
 //! - HKS features alone (`automatic`, or `auto` without correspondences): σ 0.1 of the fan
 //!   radius on the coarsest level growing geometrically to 0.5 on the finest, histogram weight 4;
 //! - with affinities (`affinity`, `both`, or `auto` with correspondences), no shape features,
