@@ -67,7 +67,7 @@ use super::levels::MeshLevels;
 use super::matcher::{bfs_order, components, usage_penalty, EStep, Nnf, PatchSpace};
 use super::upsample::{upsample, Allowed, Side};
 use super::vote::{nearest_neighbour_colors, vote, SourcePatches, VoteStencil};
-use super::vote_schedule::VoteSchedule;
+use super::vote_schedule::{geometric_at, VoteSchedule};
 use super::{MeshMatchError, MeshMatchParams, ShapeFeatures};
 
 /// Most vertices per fan chart: an even mesh has about 75 within the fan radius plus the filter
@@ -228,14 +228,14 @@ fn feature_kinds(params: &MeshMatchParams, correspondences: bool) -> (bool, bool
     }
 }
 
+/// The shape features of both meshes; `(use_auto, use_affinity)` from [`feature_kinds`].
 fn shape_features(
     input: &MatchInput<'_>,
-    src: &MeshLevels,
-    tgt: &MeshLevels,
+    (src, tgt): (&MeshLevels, &MeshLevels),
     params: &MeshMatchParams,
+    (use_auto, use_affinity): (bool, bool),
     control: &Control,
 ) -> Result<Shapes, MeshMatchError> {
-    let (use_auto, use_affinity) = feature_kinds(params, !input.correspondences.is_empty());
     if use_affinity && input.correspondences.is_empty() {
         return Err(MeshMatchError::Param {
             name: "shape_features",
@@ -351,12 +351,18 @@ pub fn synthesize(
 
     let span = control.span(0.08, 0.15);
     control.stage("meshmatch: features", 0)?;
-    let shapes = shape_features(input, &src_levels, tgt_levels, params, control)?;
+    let (hks, affinity) = feature_kinds(params, !input.correspondences.is_empty());
+    let shapes = shape_features(
+        input,
+        (&src_levels, tgt_levels),
+        params,
+        (hks, affinity),
+        control,
+    )?;
     drop(span);
 
     let normalization = Normalization::new(input, &src_levels, &shapes);
     let masks = ExampleMasks::new(input, tgt_levels, normalization.color_std)?;
-    let (hks, affinity) = feature_kinds(params, !input.correspondences.is_empty());
     let schedule = VoteSchedule::resolve(params, hks, affinity);
     let run = CoarseToFine {
         params,
@@ -1016,10 +1022,10 @@ impl<'a> CoarseToFine<'a> {
 /// geometric in between.
 fn shape_weight_at(params: &MeshMatchParams, level: usize, top: usize) -> f32 {
     let coarse = params.shape_weight;
-    let fine = params.finest_shape_weight.unwrap_or(coarse);
-    if top == 0 || coarse <= 0.0 || fine <= 0.0 {
-        return if level == 0 { fine } else { coarse };
-    }
-    let t = level as f32 / top as f32;
-    fine * (coarse / fine).powf(t)
+    geometric_at(
+        coarse,
+        params.finest_shape_weight.unwrap_or(coarse),
+        level,
+        top,
+    )
 }

@@ -184,12 +184,12 @@ pub fn run(
         (_, true) | (ScaleMode::World, _) => 1.0f32,
         (mode, false) => {
             let area = (area_t / area_s).sqrt();
-            let extents = extent_ratio(&src_surface, &tgt_surface).unwrap_or(area);
-            match mode {
-                ScaleMode::MatchArea => area as f32,
-                ScaleMode::MatchExtents => extents as f32,
-                _ => area.min(extents) as f32,
-            }
+            let extents = || extent_ratio(&src_surface, &tgt_surface).unwrap_or(area);
+            (match mode {
+                ScaleMode::MatchArea => area,
+                ScaleMode::MatchExtents => extents(),
+                _ => area.min(extents()),
+            }) as f32
         }
     };
     let source_samples = if by_example {

@@ -61,13 +61,19 @@ impl VoteSchedule {
 
     /// Vote σ of `level` (0 the finest, `top` the coarsest), fraction of the fan radius.
     pub fn sigma_at(&self, level: usize, top: usize) -> f32 {
-        let (coarse, fine) = (self.coarse_sigma, self.finest_sigma);
-        if top == 0 {
-            return fine;
-        }
-        let t = level as f32 / top as f32;
-        fine * (coarse / fine).powf(t)
+        geometric_at(self.coarse_sigma, self.finest_sigma, level, top)
     }
+}
+
+/// A per-level value that is `coarse` on level `top` (the coarsest) and `fine` on level 0,
+/// geometric in between (the vote σ and the shape weight); with a non-positive end, `fine` on
+/// level 0 and `coarse` elsewhere.
+pub fn geometric_at(coarse: f32, fine: f32, level: usize, top: usize) -> f32 {
+    if top == 0 || coarse <= 0.0 || fine <= 0.0 {
+        return if level == 0 { fine } else { coarse };
+    }
+    let t = level as f32 / top as f32;
+    fine * (coarse / fine).powf(t)
 }
 
 #[cfg(test)]
