@@ -1,12 +1,10 @@
 //! [`synthesize`]: the MeshMatch optimization, a coarse-to-fine EM on two synthesis meshes (Chen
 //! et al. 2012, §4, Figure 2): build both hierarchies ([`build_levels`]), compute the shape
 //! features (§4.1: HKS + up, or geodesic affinities to the correspondences, or both;
-//! [`shape_features`]), normalize them and the colours ([`Normalization`]), then coarse to fine
-//! ([`CoarseToFine`]): initialize the nearest-neighbour field at random on the coarsest level or
-//! upsample it from the coarser one (Figure 6), vote the target colours, and iterate EM — E-step propagation and random search ([`super::matcher`]), M-step voting
-//! ([`super::vote`]) — until the field stabilizes or `iterations` passes ran. At the finest level
-//! the colours are finally copied from the matches (nearest-neighbour reconstruction) unless
-//! disabled.
+//! [`shape_features`]), normalize them and the colours ([`Normalization`]), resolve the vote
+//! schedule ([`super::vote_schedule`]), then run the levels coarsest first
+//! ([`super::coarse_to_fine`]: random or upsampled field, EM iterations of E-step and vote, the
+//! final nearest-neighbour reconstruction).
 //!
 //! Colours are matched in units of their standard deviation over the source; each shape dimension
 //! is divided by its standard deviation over the source and the shape block is weighted so that,
@@ -14,27 +12,21 @@
 //! variance (§5.2). The shape weight can be lowered towards the finest level (§5.2: "lower shape
 //! weighting at finer scales").
 //!
-//! **Why dark features erode (issue 14, open).** Measured per level on Spot → cat (16K samples,
+//! **Why dark features eroded (issue 14 item 1).** Measured per level on Spot → cat (16K samples,
 //! HKS features; k-means k = 5 shares of the synthesised colours against the source's): with the
-//! vote Gaussian at σ = 0.5 × the fan radius, no coarse level's *voted* colours contained any of
-//! the black patches (0% from the coarsest level to level 3, where the source's own level has
-//! 6%): every black vertex is averaged with the white votes around it into grey, the next E-step
-//! finds white patches closest to that grey, and the black share of the matches fell 5% → 0.3%
-//! from level 4 to level 3 and ended at 0.6% (source 8.6%). Averaging in the vote is the cause:
-//! σ = 0.1 (0.3 mean edges: a vote is nearly the colour the match puts at the vertex itself, the
-//! per-level analogue of the paper's final nearest-neighbour step) keeps black at 5.9% and the
-//! TV distance falls 0.234 → 0.149 (Blub → fish remesh: 0.202 → 0.100). Tried and not the cause:
-//! a smaller shape weight (0.5: black 0%), a coarser start (`min_vertices` 2048: black 0.3%),
-//! no final NN step (no change), no shape features (everything collapses onto the first colour).
-//! A completeness term (`completeness_weight`, a cost per use of a source vertex relative to an
-//! even cover, after the occurrence penalty of self-tuning texture optimisation, Kaspar et al.
-//! 2015, standing in for bidirectional similarity's completeness) raises rare colours (black
-//! 5.9% → 11% at weight 1 with σ = 0.1) but cannot undo a grey vote, so it is off by default.
-//! σ stays 0.5 by default: at 0.1 the synthetic tests fail (three-colour bands on a stretched
-//! capsule: TV 0.215, was 0.07; the stripe-period and by-example stripe tests fail too), so a
-//! default that serves both (per-level σ, or NN voting only on the finer levels) is still to be
-//! found; Spot → cat also keeps a second error at σ = 0.1 (cream 13.8% → 3.8%, orange 2% →
-//! 13.8%, present from the coarse levels on).
+//! vote Gaussian at σ = 0.5 × the fan radius on every level, no coarse level's *voted* colours
+//! contained any of the black patches (0% from the coarsest level to level 3, where the source's
+//! own level has 6%): every black vertex is averaged with the white votes around it into grey,
+//! the next E-step finds white patches closest to that grey, and the black share of the matches
+//! fell 5% → 0.3% from level 4 to level 3 and ended at 0.6% (source 8.6%). Averaging in the vote
+//! is the cause; not the cause: a smaller shape weight (0.5: black 0%), a coarser start
+//! (`min_vertices` 2048: black 0.3%), the final NN step, the features. A completeness term
+//! (`completeness_weight`, a cost per use of a source vertex relative to an even cover, after the
+//! occurrence penalty of self-tuning texture optimisation, Kaspar et al. 2015, standing in for
+//! bidirectional similarity's completeness) raises rare colours but cannot undo a grey vote, so
+//! it is off by default. The remedy in use is the vote schedule (narrow coarse votes with
+//! histogram matching when HKS features leave the layout free; [`super::vote_schedule`]): black
+//! 6.5% of the output against 9.0% in Spot.
 //!
 //! By-example mode (§5.3): source and target are the same mesh; painted vertices keep their colour
 //! and matches may only use painted vertices whose whole fan lies in the painted region. "Whole
@@ -54,20 +46,16 @@
 use serde::Serialize;
 
 use crate::engine::control::Control;
-use crate::engine::geometry::expmap::{ExpMap, RadiusUnit};
-use crate::engine::geometry::fans::{FanParams, FanSampler, Fans, FieldRef};
+use crate::engine::geometry::expmap::ExpMap;
 use crate::engine::geometry::heat::Source;
 use crate::engine::mesh::Surface;
-use crate::engine::rng::{mix, SplitMix64};
 
+use super::coarse_to_fine::{AllLevels, CoarseToFine};
 use super::features::{automatic_features, geodesic_affinities, AffinityPair, AffinityReport};
-use super::fidelity::{measure, Fidelity, FidelityInput};
-use super::histogram::HistogramBias;
+use super::fidelity::Fidelity;
 use super::levels::MeshLevels;
-use super::matcher::{bfs_order, components, usage_penalty, EStep, Nnf, PatchSpace};
-use super::upsample::{upsample, Allowed, Side};
-use super::vote::{nearest_neighbour_colors, vote, SourcePatches, VoteStencil};
-use super::vote_schedule::{geometric_at, VoteSchedule};
+use super::matcher::Nnf;
+use super::vote_schedule::VoteSchedule;
 use super::{MeshMatchError, MeshMatchParams, ShapeFeatures};
 
 /// Most vertices per fan chart: an even mesh has about 75 within the fan radius plus the filter
@@ -209,12 +197,12 @@ fn std_per_dim(values: &[f32], dim: usize) -> Vec<f32> {
 }
 
 /// Shape features of both meshes on their feature levels, spread over all levels.
-struct Shapes {
-    dim: usize,
-    source: Vec<Vec<f32>>,
-    target: Vec<Vec<f32>>,
-    affinity: Option<AffinityReport>,
-    kind: &'static str,
+pub(super) struct Shapes {
+    pub(super) dim: usize,
+    pub(super) source: Vec<Vec<f32>>,
+    pub(super) target: Vec<Vec<f32>>,
+    pub(super) affinity: Option<AffinityReport>,
+    pub(super) kind: &'static str,
 }
 
 /// Which shape features a synthesis uses: (HKS + up, geodesic affinities).
@@ -426,13 +414,13 @@ fn build_levels(
 }
 
 /// Colours and shape features in units of their standard deviation over the source.
-struct Normalization {
+pub(super) struct Normalization {
     /// The colour scale: std over the source, all channels pooled.
-    color_std: f32,
+    pub(super) color_std: f32,
     /// Normalized source colours per level, `[vertex][rgb]` flattened.
-    src_colors: Vec<Vec<f32>>,
+    pub(super) src_colors: Vec<Vec<f32>>,
     /// Std of each shape dimension over the source (1 where it vanishes); empty without shape.
-    shape_std: Vec<f32>,
+    pub(super) shape_std: Vec<f32>,
 }
 
 impl Normalization {
@@ -466,7 +454,7 @@ impl Normalization {
 /// (§5.3; the source vertices matches may use are found per level from the fan charts,
 /// [`fan_inside`]), copied ones in texture-update mode (with their normalized colours, averaged
 /// over each coarse vertex's children, all of which are copied).
-enum ExampleMasks {
+pub(super) enum ExampleMasks {
     /// A plain transfer: nothing is kept.
     Transfer,
     /// By-example: the painted vertices per level.
@@ -515,7 +503,7 @@ impl ExampleMasks {
     }
 
     /// The target vertices of `level` that keep their colour (painted or copied).
-    fn fixed(&self, level: usize) -> Option<&[bool]> {
+    pub(super) fn fixed(&self, level: usize) -> Option<&[bool]> {
         match self {
             ExampleMasks::Transfer => None,
             ExampleMasks::ByExample { painted } => Some(&painted[level]),
@@ -524,7 +512,7 @@ impl ExampleMasks {
     }
 
     /// Texture update: the copied colours of `level`.
-    fn fixed_colors(&self, level: usize) -> Option<&[[f32; 3]]> {
+    pub(super) fn fixed_colors(&self, level: usize) -> Option<&[[f32; 3]]> {
         match self {
             ExampleMasks::Update { colors, .. } => Some(&colors[level]),
             _ => None,
@@ -532,7 +520,7 @@ impl ExampleMasks {
     }
 
     /// By-example mode: the painted vertices of `level`.
-    fn painted(&self, level: usize) -> Option<&[bool]> {
+    pub(super) fn painted(&self, level: usize) -> Option<&[bool]> {
         match self {
             ExampleMasks::ByExample { painted } => Some(&painted[level]),
             _ => None,
@@ -547,485 +535,4 @@ pub fn fan_inside(mask: &[bool], charts: &ExpMap) -> Vec<bool> {
     (0..mask.len())
         .map(|v| mask[v] && charts.chart(v).0.iter().all(|&q| mask[q as usize]))
         .collect()
-}
-
-/// What every level of the coarse-to-fine loop reads.
-struct CoarseToFine<'a> {
-    params: &'a MeshMatchParams,
-    /// The vote's σ per level and histogram strength.
-    schedule: VoteSchedule,
-    seed: u64,
-    control: &'a Control,
-    src: &'a MeshLevels,
-    tgt: &'a MeshLevels,
-    shapes: &'a Shapes,
-    normalization: &'a Normalization,
-    masks: &'a ExampleMasks,
-    /// Levels used (the shorter hierarchy's).
-    levels: usize,
-}
-
-/// The data of one level that stays fixed through its EM iterations.
-struct Level<'a> {
-    index: usize,
-    /// Source and target vertices.
-    ns: usize,
-    nt: usize,
-    /// Fan radius, world units.
-    radius: f32,
-    /// Shape weight of this level.
-    weight: f32,
-    src_fans: Fans,
-    /// [`FanShape::ring_stats`] of `src_fans` (the E-step's candidate pruning).
-    src_ring_stats: Vec<f32>,
-    tgt_sampler: FanSampler,
-    stencil: VoteStencil,
-    /// Normalized source colour per vertex.
-    centers: Vec<[f32; 3]>,
-    /// Scaled shape features.
-    src_shape: Vec<f32>,
-    tgt_shape: Vec<f32>,
-    /// By-example masks of this level: source vertices matches may use, painted targets.
-    allowed: Option<Vec<bool>>,
-    fixed: Option<&'a [bool]>,
-    /// Texture update: the copied colours of this level (normalized), else the fixed vertices
-    /// keep their source colour (`centers`, by-example mode: the same mesh).
-    fixed_colors: Option<&'a [[f32; 3]]>,
-    /// Whether the E-step leaves the fixed vertices' matches alone (by-example mode, where a
-    /// painted vertex matches itself). In texture-update mode copied vertices are matched like
-    /// the others, so their matches propagate into the synthesized region.
-    fixed_matches: bool,
-    /// Why `allowed` is the unshrunk painted mask on this level, if it is.
-    warning: Option<String>,
-}
-
-/// What the coarse-to-fine loop ends with.
-struct AllLevels {
-    /// Normalized colours of the finest target vertices.
-    colors: Vec<[f32; 3]>,
-    /// The finest field.
-    nnf: Nnf,
-    /// One report per level, coarsest first.
-    reports: Vec<LevelReport>,
-    /// Fidelity figures (with `measure_fidelity`).
-    fidelity: Option<Fidelity>,
-    /// Warnings of the levels.
-    warnings: Vec<String>,
-}
-
-/// What one level hands on: the field, the colours, and its figures.
-struct LevelOutput {
-    nnf: Nnf,
-    colors: Vec<[f32; 3]>,
-    fidelity: Option<Fidelity>,
-    report: LevelReport,
-    warning: Option<String>,
-}
-
-impl Level<'_> {
-    /// The vertices the vote leaves alone, and the colours they keep.
-    fn keep(&self) -> Option<(&[bool], &[[f32; 3]])> {
-        self.fixed
-            .map(|f| (f, self.fixed_colors.unwrap_or(self.centers.as_slice())))
-    }
-}
-
-impl<'a> CoarseToFine<'a> {
-    /// All levels, coarsest first.
-    fn all_levels(&self) -> Result<AllLevels, MeshMatchError> {
-        // Progress: the levels share the rest of the span in proportion to their vertex counts
-        // (charts, fans, E-steps and votes are all linear in them).
-        let level_cost: Vec<f64> = (0..self.levels)
-            .map(|l| {
-                (self.src.surface(l).vertex_count() + self.tgt.surface(l).vertex_count()) as f64
-            })
-            .collect();
-        let total_cost: f64 = level_cost.iter().sum::<f64>().max(1.0);
-        let mut cost_done = 0.0;
-        let mut reports = Vec::new();
-        let mut fidelity = None;
-        let mut warnings = Vec::new();
-        let mut nnf = Nnf::default();
-        let mut colors: Vec<[f32; 3]> = Vec::new();
-        for level in (0..self.levels).rev() {
-            let level_start = 0.15 + 0.85 * cost_done / total_cost;
-            cost_done += level_cost[level];
-            let _level_span = self
-                .control
-                .span(level_start, 0.15 + 0.85 * cost_done / total_cost);
-            let out = self.level(level, nnf)?;
-            nnf = out.nnf;
-            colors = out.colors;
-            if out.fidelity.is_some() {
-                fidelity = out.fidelity;
-            }
-            warnings.extend(out.warning);
-            reports.push(out.report);
-        }
-        Ok(AllLevels {
-            colors,
-            nnf,
-            reports,
-            fidelity,
-            warnings,
-        })
-    }
-
-    /// One level: prepare, initialize or upsample the field from `coarser`, vote, iterate EM,
-    /// and on the finest level reconstruct and measure.
-    fn level(&self, level: usize, coarser: Nnf) -> Result<LevelOutput, MeshMatchError> {
-        let (params, levels) = (self.params, self.levels);
-        self.control
-            .set_prefix(&format!("meshmatch level {}/{levels}", levels - level));
-        self.control.stage("prepare", 0)?;
-        let lv = self.prepare(level)?;
-        self.control.stage("initial field and vote", 0)?;
-        let mut nnf = self.initial_field(&lv, &coarser)?;
-        if let Some(f) = lv.fixed.filter(|_| lv.fixed_matches) {
-            for (t, &is_fixed) in f.iter().enumerate() {
-                if is_fixed {
-                    nnf.source[t] = t as u32;
-                    nnf.rotation[t] = 0;
-                }
-            }
-        }
-        let patches = SourcePatches {
-            rings: params.rings,
-            spokes: params.spokes,
-            radius: lv.radius,
-            fans: &lv.src_fans.data,
-            centers: &lv.centers,
-        };
-        let keep = lv.keep();
-        let sigma = self.schedule.sigma_at(level, self.levels - 1) * lv.radius;
-        let mut colors = vote(&lv.stencil, &nnf, &patches, sigma, keep, None);
-        let (iterations, converged) = self.iterate(&lv, &patches, sigma, &mut nnf, &mut colors)?;
-        if level == 0 && params.nearest_neighbor_final {
-            self.control.stage("nearest-neighbour colours", 0)?;
-            colors = nearest_neighbour_colors(&nnf, &lv.centers, keep);
-        }
-        let mut fidelity = None;
-        if level == 0 && params.measure_fidelity {
-            self.control.stage("fidelity", 0)?;
-            fidelity = Some(measure(
-                &FidelityInput {
-                    source: self.src,
-                    target: self.tgt,
-                    source_fans: &lv.src_fans.data,
-                    target_sampler: &lv.tgt_sampler,
-                    colors: &colors,
-                    nnf: &nnf,
-                    allowed: lv.allowed.as_deref(),
-                    fixed: lv.fixed,
-                    rings: params.rings,
-                    seed: self.seed,
-                },
-                self.control,
-            )?);
-        }
-        let report = LevelReport {
-            level,
-            target_vertices: lv.nt,
-            source_vertices: lv.ns,
-            fan_radius: lv.radius,
-            shape_weight: lv.weight,
-            iterations,
-            converged,
-            usable_sources: lv
-                .allowed
-                .as_ref()
-                .map(|a| a.iter().filter(|&&x| x).count()),
-        };
-        Ok(LevelOutput {
-            nnf,
-            colors,
-            fidelity,
-            report,
-            warning: lv.warning,
-        })
-    }
-
-    /// Fans of the source colours, the target's fan sampler and vote stencil, and the shape
-    /// features scaled for `level`.
-    fn prepare(&self, level: usize) -> Result<Level<'a>, MeshMatchError> {
-        let (params, control) = (self.params, self.control);
-        let (src_levels, tgt_levels, shapes) = (self.src, self.tgt, self.shapes);
-        let src_colors = &self.normalization.src_colors;
-        let src_surface = src_levels.surface(level);
-        let tgt_surface = tgt_levels.surface(level);
-        let (ns, nt) = (src_surface.vertex_count(), tgt_surface.vertex_count());
-        let radius = params.fan_radius * tgt_levels.mean_edge[level];
-        let fan_params = FanParams {
-            rings: params.rings,
-            spokes: params.spokes,
-            radius,
-            radius_unit: RadiusUnit::World,
-            max_chart_vertices: MAX_CHART_VERTICES,
-            ..Default::default()
-        };
-        let src_sampler =
-            FanSampler::new(src_surface, &src_levels.frames[level], &fan_params, control)?;
-        let src_fans = src_sampler.sample(
-            FieldRef {
-                dim: 3,
-                values: &src_colors[level],
-            },
-            control,
-        )?;
-        let (allowed, warning) = self.usable_sources(level, src_sampler.charts())?;
-        drop(src_sampler);
-        let mut tgt_sampler =
-            FanSampler::new(tgt_surface, &tgt_levels.frames[level], &fan_params, control)?;
-        // The target's colours are sampled at every EM iteration: keep the filter weights.
-        tgt_sampler.cache_weights(control)?;
-        let stencil = VoteStencil::build(tgt_sampler.charts(), radius);
-        let centers: Vec<[f32; 3]> = src_colors[level]
-            .chunks_exact(3)
-            .map(|c| [c[0], c[1], c[2]])
-            .collect();
-        let weight = shape_weight_at(params, level, self.levels - 1);
-        let fan_dims = (params.rings * params.spokes * 3) as f32;
-        let scale: Vec<f32> = self
-            .normalization
-            .shape_std
-            .iter()
-            .map(|s| (weight * fan_dims / shapes.dim.max(1) as f32).sqrt() / s)
-            .collect();
-        let scaled = |values: &[f32]| -> Vec<f32> {
-            values
-                .iter()
-                .enumerate()
-                .map(|(i, x)| x * scale[i % shapes.dim.max(1)])
-                .collect()
-        };
-        let (src_shape, tgt_shape) = if shapes.dim > 0 {
-            (scaled(&shapes.source[level]), scaled(&shapes.target[level]))
-        } else {
-            (Vec::new(), Vec::new())
-        };
-        let src_ring_stats = src_fans.shape().ring_stats(&src_fans.data);
-        Ok(Level {
-            index: level,
-            ns,
-            nt,
-            radius,
-            weight,
-            src_fans,
-            src_ring_stats,
-            tgt_sampler,
-            stencil,
-            centers,
-            src_shape,
-            tgt_shape,
-            allowed,
-            fixed: self.masks.fixed(level),
-            fixed_colors: self.masks.fixed_colors(level),
-            fixed_matches: self.masks.painted(level).is_some(),
-            warning,
-        })
-    }
-
-    /// By-example mode: the source vertices of `level` whose whole fan lies in the painted region
-    /// ([`fan_inside`]), and a warning when there is none on a coarser level (the painted mask is
-    /// used unshrunk there). None on the finest level is an error.
-    #[allow(clippy::type_complexity)]
-    fn usable_sources(
-        &self,
-        level: usize,
-        charts: &ExpMap,
-    ) -> Result<(Option<Vec<bool>>, Option<String>), MeshMatchError> {
-        let Some(painted) = self.masks.painted(level) else {
-            return Ok((None, None));
-        };
-        if level > 0 {
-            // Coarser levels only seed the finer ones: restricting them to whole-fan vertices
-            // left so few usable sources that the synthesized region collapsed onto one colour
-            // (a striped capsule's unpainted half came out 100% dark).
-            return Ok((Some(painted.to_vec()), None));
-        }
-        let inside = fan_inside(painted, charts);
-        if inside.iter().any(|&x| x) {
-            return Ok((Some(inside), None));
-        }
-        if level == 0 {
-            return Err(MeshMatchError::Param {
-                name: "example",
-                message: format!(
-                    "no fan fits inside the painted region (fan radius {:.4} world units plus the filter reach): paint a wider region or lower fan_radius",
-                    charts.radius
-                ),
-            });
-        }
-        let warning = format!(
-            "by-example: on level {level} ({} vertices) no fan fits inside the painted region; matches there may use any painted vertex",
-            painted.len()
-        );
-        Ok((Some(painted.to_vec()), Some(warning)))
-    }
-
-    /// The field to start `lv` from: random on the coarsest level, else upsampled from the
-    /// `coarser` level's field.
-    fn initial_field(&self, lv: &Level<'_>, coarser: &Nnf) -> Result<Nnf, MeshMatchError> {
-        let (level, ns, nt) = (lv.index, lv.ns, lv.nt);
-        if level == self.levels - 1 {
-            let pool: Vec<u32> = (0..ns as u32)
-                .filter(|&s| lv.allowed.as_ref().is_none_or(|a| a[s as usize]))
-                .collect();
-            if pool.is_empty() {
-                return Err(MeshMatchError::Param {
-                    name: "example",
-                    message: format!(
-                        "the painted region vanishes on the coarsest level ({ns} vertices): paint a larger part or raise min_vertices"
-                    ),
-                });
-            }
-            let mut rng = SplitMix64::new(mix(self.seed, 0xC0A5, level as u64));
-            Ok(Nnf {
-                source: (0..nt)
-                    .map(|_| pool[rng.below(pool.len() as u64) as usize])
-                    .collect(),
-                rotation: (0..nt)
-                    .map(|_| rng.below(self.params.spokes as u64) as u16)
-                    .collect(),
-                distance: vec![f32::INFINITY; nt],
-            })
-        } else {
-            Ok(upsample(
-                coarser,
-                level,
-                &Side {
-                    hierarchy: &self.tgt.hierarchy,
-                    frames: &self.tgt.frames,
-                },
-                &Side {
-                    hierarchy: &self.src.hierarchy,
-                    frames: &self.src.frames,
-                },
-                &self.src.bvh[level],
-                self.params.spokes,
-                lv.allowed.as_deref().map(|mask| Allowed {
-                    mask,
-                    seed: mix(self.seed, 0x5a11, level as u64),
-                }),
-            ))
-        }
-    }
-
-    /// The EM iterations of one level (E-step: refresh, propagation, random search; M-step:
-    /// vote) until the field stabilizes or `iterations` passes ran. Returns the iteration
-    /// reports and whether it converged.
-    fn iterate(
-        &self,
-        lv: &Level<'_>,
-        patches: &SourcePatches<'_>,
-        sigma: f32,
-        nnf: &mut Nnf,
-        colors: &mut Vec<[f32; 3]>,
-    ) -> Result<(Vec<IterationReport>, bool), MeshMatchError> {
-        let (params, control, seed) = (self.params, self.control, self.seed);
-        let (level, nt, levels) = (lv.index, lv.nt, self.levels);
-        let (src_levels, tgt_levels) = (self.src, self.tgt);
-        let keep = lv.keep();
-        let (labels, firsts) = components(tgt_levels.rings(level), nt);
-        let mut rng = SplitMix64::new(mix(seed, 0x0bf5, level as u64));
-        // A random start inside each component.
-        let mut members: Vec<Vec<u32>> = vec![Vec::new(); firsts.len()];
-        for (v, &c) in labels.iter().enumerate() {
-            members[c as usize].push(v as u32);
-        }
-        let mut starts: Vec<u32> = members
-            .iter()
-            .map(|m| m[rng.below(m.len() as u64) as usize])
-            .collect();
-        let mut iterations = Vec::new();
-        let mut converged = false;
-        for it in 0..params.iterations {
-            control.set_prefix(&format!(
-                "meshmatch level {}/{levels} iteration {}",
-                levels - level,
-                it + 1
-            ));
-            control.check()?;
-            let flat: Vec<f32> = colors.iter().flatten().copied().collect();
-            let tgt_fans = lv.tgt_sampler.sample(
-                FieldRef {
-                    dim: 3,
-                    values: &flat,
-                },
-                control,
-            )?;
-            control.stage("E-step", 0)?;
-            let tgt_ring_stats = tgt_fans.shape().ring_stats(&tgt_fans.data);
-            let ring_weights = if params.fan_area_weights {
-                tgt_fans.shape().area_ring_weights()
-            } else {
-                Vec::new()
-            };
-            let penalty = usage_penalty(
-                nnf,
-                lv.ns,
-                lv.allowed.as_deref(),
-                lv.fixed,
-                params.completeness_weight,
-                lv.src_fans.shape().len() as f32,
-            );
-            let step = EStep {
-                space: PatchSpace {
-                    fan: lv.src_fans.shape(),
-                    target_fans: &tgt_fans.data,
-                    source_fans: &lv.src_fans.data,
-                    target_shape: &lv.tgt_shape,
-                    source_shape: &lv.src_shape,
-                    shape_dim: self.shapes.dim,
-                    source_allowed: lv.allowed.as_deref(),
-                    exclude: None,
-                    source_penalty: &penalty,
-                    ring_weights: &ring_weights,
-                    target_ring_stats: &tgt_ring_stats,
-                    source_ring_stats: &lv.src_ring_stats,
-                },
-                target_adjacency: tgt_levels.rings(level),
-                source_adjacency: src_levels.rings(level),
-                source_hierarchy: &src_levels.hierarchy,
-                level,
-                whole_source_draws: level + 1 == levels,
-                randomized_rotations: params.randomized_rotations,
-                fixed: lv.fixed.filter(|_| lv.fixed_matches),
-                seed: mix(seed, level as u64, it as u64),
-            };
-            step.refresh(nnf);
-            control.check()?;
-            let order = bfs_order(tgt_levels.rings(level), &labels, &mut starts);
-            let propagated = step.propagate(nnf, &order);
-            control.check()?;
-            let searched = step.random_search(nnf);
-            let energy = nnf.energy();
-            control.stage("vote", 0)?;
-            let bias = HistogramBias::new(&lv.centers, colors, self.schedule.histogram_weight);
-            *colors = vote(&lv.stencil, nnf, patches, sigma, keep, bias.as_ref());
-            iterations.push(IterationReport {
-                energy,
-                propagated,
-                searched,
-            });
-            let changed = (propagated + searched) as f32 / nt.max(1) as f32;
-            if it > 0 && changed < params.convergence {
-                converged = true;
-                break;
-            }
-        }
-        Ok((iterations, converged))
-    }
-}
-
-/// Shape weight of `level`: `shape_weight` on the coarsest level, `finest_shape_weight` on level 0,
-/// geometric in between.
-fn shape_weight_at(params: &MeshMatchParams, level: usize, top: usize) -> f32 {
-    let coarse = params.shape_weight;
-    geometric_at(
-        coarse,
-        params.finest_shape_weight.unwrap_or(coarse),
-        level,
-        top,
-    )
 }

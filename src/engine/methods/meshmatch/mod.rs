@@ -13,11 +13,17 @@
 //! - [`vote`]: Gaussian voting (§4.2 M-step, Figure 5) and nearest-neighbour reconstruction.
 //! - [`fidelity`]: coherence, source self-match and completeness of a result.
 //! - [`upsample`]: the field carried to the finer level (§4.2, Figure 6).
-//! - [`em`]: [`em::synthesize`], the coarse-to-fine EM on two synthesis meshes.
+//! - [`em`]: [`em::synthesize`], the coarse-to-fine EM on two synthesis meshes: hierarchies,
+//!   features, normalization.
+//! - `coarse_to_fine`: its per-level loop (field initialization or upsampling, EM iterations,
+//!   the final reconstruction).
+//! - [`vote_schedule`]: the vote's σ per level and histogram strength; [`histogram`]: the
+//!   histogram-matching bias; [`scale`]: the source's scale factor.
 //! - [`example`]: the by-example mask (§5.3).
 //! - [`update`]: texture update (§5.3, Figure 10): the copied region of an edited target.
 //! - [`run`]: glTF in, glTF out (bake through [`super::color_output`]), the NNF artifact.
 
+mod coarse_to_fine;
 pub mod em;
 pub mod example;
 pub mod features;
