@@ -51,6 +51,7 @@ mod memory_budget;
 mod meshmatch_defects;
 mod meshmatch_features;
 mod meshmatch_param_sweep;
+mod meshmatch_real_pairs;
 mod meshmatch_scale;
 mod meshmatch_statistics;
 mod meshmatch_stripes;

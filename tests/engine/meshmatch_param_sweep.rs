@@ -4,36 +4,13 @@
 //! For each pair, parameter set and seed it prints the output's colour statistics against the
 //! source's (k-means k = 5 in sRGB on area-uniform samples; TV and the worst ratio of a ≥ 5%
 //! cluster), the figures of the README's sweep table. `RETEX_MESHMATCH_SWEEP` replaces the
-//! default sets with a JSON array of `params` objects.
+//! default sets with a JSON array of `params` objects; `RETEX_MESHMATCH_SWEEP_CORR=1` adds the
+//! pairs' hand-placed correspondences (`meshmatch_real_pairs`) to every run.
 
-use crate::common::{load_bytes, shared_asset};
+use crate::common::load_bytes;
 use crate::meshmatch_common::{color_statistics, run_bytes};
-
-const PAIRS: [(&str, &str, &str); 3] = [
-    (
-        "src_spot_keenan/spot_textured_derived.glb",
-        "tgt_cat_odedstein/cat-low-resolution_derived.glb",
-        "spot→cat",
-    ),
-    (
-        "src_blub_keenan/blub_textured_derived.glb",
-        "tgt_fish_remeshed_odedstein/fish_low_resolution_derived.glb",
-        "blub→fish",
-    ),
-    (
-        "src_fox_khronos/glTF-Binary/Fox.glb",
-        "perf_koala_odedstein/koala_low_resolution_derived.glb",
-        "fox→koala",
-    ),
-];
-
-fn bytes(rel: &str) -> (String, Vec<u8>) {
-    let p = shared_asset(rel);
-    (
-        p.file_name().unwrap().to_string_lossy().into_owned(),
-        std::fs::read(&p).unwrap(),
-    )
-}
+use crate::meshmatch_real_pairs::{pair_correspondences, PAIRS};
+use crate::meshmatch_transfer::shared_bytes;
 
 #[test]
 #[ignore = "benchmark: needs the shared assets; prints the parameter sweep"]
@@ -46,9 +23,18 @@ fn bench_meshmatch_param_sweep() {
         )
         .unwrap(),
     };
+    let with_correspondences = std::env::var("RETEX_MESHMATCH_SWEEP_CORR").is_ok_and(|v| v == "1");
     for (src, tgt, name) in PAIRS {
-        let (sn, sb) = bytes(src);
-        let (tn, tb) = bytes(tgt);
+        let corr = if with_correspondences {
+            match pair_correspondences(name) {
+                Some(c) => c,
+                None => continue,
+            }
+        } else {
+            serde_json::json!([])
+        };
+        let (sn, sb) = shared_bytes(src);
+        let (tn, tb) = shared_bytes(tgt);
         let source = load_bytes(&sb, &sn);
         for set in &sets {
             for seed in [1u64, 2] {
@@ -60,12 +46,14 @@ fn bench_meshmatch_param_sweep() {
                     (&sn, sb.clone()),
                     (&tn, tb.clone()),
                     serde_json::json!({"version": 1, "method": "meshmatch", "seed": seed,
+                        "correspondences": corr,
                         "output": {"texture_size": 512, "padding": 4, "uv": "keep"},
                         "params": params}),
                 );
                 let stats = color_statistics(&source, &load_bytes(&out.model, "out.glb"));
                 println!(
-                    "SWEEP {name} {set} seed {seed}: TV {:.3} worst {:.2} kept {} | {stats}",
+                    "SWEEP {name}{} {set} seed {seed}: TV {:.3} worst {:.2} kept {} | {stats}",
+                    if with_correspondences { " (corr.)" } else { "" },
                     stats.tv,
                     stats.worst_ratio,
                     stats.kept()

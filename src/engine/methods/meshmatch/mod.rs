@@ -304,8 +304,8 @@ pub struct MeshMatchParams {
     /// Histogram matching in the vote (Kopf et al. 2007 §3.3, module `histogram`): votes for
     /// colours over-represented in the target's current colours against the source's are
     /// down-weighted with this strength. Default: by the shape features (module
-    /// `vote_schedule`): 4 with HKS features alone, 0 (off) with affinities or none. Range:
-    /// [0, 100].
+    /// `vote_schedule`): 4 with HKS features alone, 2 with affinities, 0 (off) without shape
+    /// features and in the by-example and update modes. Range: [0, 100].
     #[schemars(range(min = 0, max = 100))]
     pub histogram_weight: Option<f32>,
     /// By-example mode (§5.3): which part of the target is painted. Default none.
