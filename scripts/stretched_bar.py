@@ -2,7 +2,9 @@
 """The second stretch case of issue 14 item 2 (README, meshmatch): a bar of square section
 (half-width 0.5, x in [0, 4], 257 rings of 256 vertices, fan caps) with the capsule pair's black
 and white ring stripes (period 0.5) as COLOR_0, and the same bar with x in [2, 4] stretched to
-[2, 6]. Writes SRC.glb and TGT.glb. Usage: stretched_bar.py SRC.glb TGT.glb"""
+[2, 6]. Writes SRC.glb and TGT.glb. With --round, the capsule pair of `retex bench --method
+meshmatch` instead (circular section of radius 0.5, 256 around, hemispherical caps of 8 rings:
+the vertices and triangles of `primitives::capsule`, 69,378 vertices). Usage: stretched_bar.py [--round] SRC.glb TGT.glb"""
 import numpy as np, json, struct, sys
 def stripe(x):
     s=np.sin(2*np.pi*x/0.5); return 0.05+0.85*(0.5+0.5*np.tanh(4*s))
@@ -16,6 +18,28 @@ def square_loop(n_side):
             y,z={0:(0.5,t),1:(-t,0.5),2:(-0.5,-t),3:(t,-0.5)}[side]
             pts.append((y,z))
     return np.array(pts)
+def round_capsule(fx, around=256, rings=257, cap_rings=8):
+    # The vertices and triangles of `primitives::capsule`, in its order: left pole, rings from
+    # left to right, right pole.
+    ang=2*np.pi*np.arange(around)/around
+    q=lambda k: np.pi/2*k/cap_rings
+    secs=[(-0.5*np.cos(q(k)),0.5*np.sin(q(k))) for k in range(1,cap_rings)]
+    secs+=[(x,0.5) for x in np.linspace(0,4,rings)]
+    secs+=[(4+0.5*np.cos(q(k)),0.5*np.sin(q(k))) for k in range(cap_rings-1,0,-1)]
+    def w(x): return fx(x) if 0<=x<=4 else (x if x<0 else fx(4.0)+(x-4))
+    P=[(w(-0.5),0,0)]
+    for x,r in secs:
+        for a in ang: P.append((w(x),r*np.cos(a),r*np.sin(a)))
+    P.append((w(4.5),0,0))
+    n=len(secs); m=around; last=len(P)-1
+    at=lambda ring,j: 1+ring*m+j%m
+    F=[(0,at(0,j+1),at(0,j)) for j in range(m)]
+    for i in range(n-1):
+        for j in range(m):
+            a,b,c,d=at(i,j),at(i,j+1),at(i+1,j),at(i+1,j+1)
+            F+=[(a,b,d),(a,d,c)]
+    F+=[(last,at(n-1,j),at(n-1,j+1)) for j in range(m)]
+    return np.array(P,np.float32),np.array(F,np.uint32)
 def box(fx, n_side=64, rings=257):
     loop=square_loop(n_side); m=len(loop)
     xs=np.linspace(0,4,rings)
@@ -50,8 +74,10 @@ def glb(P,F,C,path):
     j=json.dumps(js).encode(); j+=b' '*((-len(j))%4); binb=b''.join(blobs)
     out=struct.pack('<III',0x46546C67,2,12+8+len(j)+8+len(binb))+struct.pack('<II',len(j),0x4E4F534A)+j+struct.pack('<II',len(binb),0x004E4942)+binb
     open(path,'wb').write(out)
-P,F=box(lambda x:x); g=stripe(P[:,0]).astype(np.float32)
+args=[a for a in sys.argv[1:] if a!='--round']
+make=round_capsule if '--round' in sys.argv else box
+P,F=make(lambda x:x); g=stripe(P[:,0]).astype(np.float32)
 C=np.stack([g,g,g,np.ones_like(g)],1).astype(np.float32)
-glb(P,F,C,sys.argv[1])
-P2,F2=box(stretch); glb(P2,F2,None,sys.argv[2])
+glb(P,F,C,args[0])
+P2,F2=make(stretch); glb(P2,F2,None,args[1])
 print(len(P),len(F))
