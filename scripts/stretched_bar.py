@@ -26,11 +26,10 @@ def round_capsule(fx, around=256, rings=257, cap_rings=8):
     secs=[(-0.5*np.cos(q(k)),0.5*np.sin(q(k))) for k in range(1,cap_rings)]
     secs+=[(x,0.5) for x in np.linspace(0,4,rings)]
     secs+=[(4+0.5*np.cos(q(k)),0.5*np.sin(q(k))) for k in range(cap_rings-1,0,-1)]
-    def w(x): return fx(x) if 0<=x<=4 else (x if x<0 else fx(4.0)+(x-4))
-    P=[(w(-0.5),0,0)]
+    P=[(fx(-0.5),0,0)]
     for x,r in secs:
-        for a in ang: P.append((w(x),r*np.cos(a),r*np.sin(a)))
-    P.append((w(4.5),0,0))
+        for a in ang: P.append((fx(x),r*np.cos(a),r*np.sin(a)))
+    P.append((fx(4.5),0,0))
     n=len(secs); m=around; last=len(P)-1
     at=lambda ring,j: 1+ring*m+j%m
     F=[(0,at(0,j+1),at(0,j)) for j in range(m)]

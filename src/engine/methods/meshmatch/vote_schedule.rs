@@ -54,11 +54,14 @@ impl VoteSchedule {
             (None, None) if narrow => (0.1, 0.5),
             (None, None) => (0.5, 0.5),
         };
-        let histogram_weight = params.histogram_weight.unwrap_or(match () {
-            _ if narrow => 4.0,
-            _ if affinity && !constrained => 2.0,
-            _ => 0.0,
-        });
+        let default_weight = if narrow {
+            4.0
+        } else if affinity && !constrained {
+            2.0
+        } else {
+            0.0
+        };
+        let histogram_weight = params.histogram_weight.unwrap_or(default_weight);
         Self {
             coarse_sigma: coarse,
             finest_sigma: finest,
