@@ -78,11 +78,24 @@ pub fn pair_correspondences(name: &str) -> Option<serde_json::Value> {
     ))
 }
 
-#[test]
-#[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
-fn real_pairs_with_correspondences_keep_the_source_statistics() {
+/// Runs every pair at 16K samples, seed 1, with `params` and the pair's landmarks when
+/// `with_correspondences`, and asserts the statistics targets (TV ≤ 0.12, every ≥ 5%
+/// cluster within 0.5-2×) on the output file.
+fn assert_pairs_keep_the_statistics(
+    with_correspondences: bool,
+    params: serde_json::Value,
+    label: &str,
+) {
     for (src, tgt, name) in PAIRS {
-        let corr = pair_correspondences(name).unwrap();
+        let corr = if with_correspondences {
+            pair_correspondences(name).unwrap()
+        } else {
+            serde_json::json!([])
+        };
+        let mut p = serde_json::json!({"samples": 16384});
+        for (k, v) in params.as_object().unwrap() {
+            p[k] = v.clone();
+        }
         let (sn, sb) = shared_bytes(src);
         let (tn, tb) = shared_bytes(tgt);
         let out = run_bytes(
@@ -91,17 +104,33 @@ fn real_pairs_with_correspondences_keep_the_source_statistics() {
             serde_json::json!({"version": 1, "method": "meshmatch", "seed": 1,
                 "correspondences": corr,
                 "output": {"texture_size": 512, "padding": 4, "uv": "keep"},
-                "params": {"samples": 16384}}),
+                "params": p}),
         );
-        let file = format!("meshmatch_corr_{}.glb", name.replace('→', "_"));
+        let file = format!("meshmatch_{label}_{}.glb", name.replace('→', "_"));
         assert_validator_clean(&out.model, &file);
         let stats = color_statistics(&load_bytes(&sb, &sn), &load_bytes(&out.model, &file));
-        eprintln!("{name} with correspondences: {stats}");
+        eprintln!("{name} {label}: {stats}");
         assert!(
             stats.tv <= 0.12 && stats.worst_ratio <= 2.0,
-            "{name} with correspondences: TV {:.3}, worst ratio {:.2} (targets 0.12, 2): {stats}",
+            "{name} {label}: TV {:.3}, worst ratio {:.2} (targets 0.12, 2): {stats}",
             stats.tv,
             stats.worst_ratio
         );
     }
+}
+
+#[test]
+#[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
+fn real_pairs_with_correspondences_keep_the_source_statistics() {
+    assert_pairs_keep_the_statistics(true, serde_json::json!({}), "corr");
+}
+
+/// Without correspondences the defaults miss on Spot → cat (TV 0.121: Spot's horn colour on the
+/// cat's tail and paws, 1.9% → 12.7%); the E-step's histogram cost at 0.1 (not the default: it
+/// makes the stripe cases' rings uneven, README) meets the targets on all three pairs (seed 1:
+/// 0.115 / 1.87, 0.029 / 1.68, 0.068 / 1.44). Fails with `histogram_cost` 0 on Spot → cat.
+#[test]
+#[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
+fn real_pairs_with_the_histogram_cost_keep_the_source_statistics() {
+    assert_pairs_keep_the_statistics(false, serde_json::json!({"histogram_cost": 0.1}), "hcost");
 }

@@ -459,6 +459,10 @@ fn bad_parameters_name_their_field() {
             serde_json::json!({"histogram_weight": 1000}),
             "params.histogram_weight",
         ),
+        (
+            serde_json::json!({"histogram_cost": -0.5}),
+            "params.histogram_cost",
+        ),
         (serde_json::json!({"fan_area_weights": "yes"}), "params"),
         (
             serde_json::json!({"example": {"vertex_color": {"channel": "q", "threshold": 0.5}}}),

@@ -442,14 +442,24 @@ impl<'a> CoarseToFine<'a> {
             } else {
                 Vec::new()
             };
-            let penalty = usage_penalty(
+            let fan_len = lv.src_fans.shape().len() as f32;
+            let mut penalty = usage_penalty(
                 nnf,
                 lv.ns,
                 lv.allowed.as_deref(),
                 lv.fixed,
                 params.completeness_weight,
-                lv.src_fans.shape().len() as f32,
+                fan_len,
             );
+            // Histogram cost: matches of source vertices whose colour the target's current
+            // (voted) colours over-represent cost more, so the matches themselves move to other
+            // source patches where the vote's histogram matching could only re-weight.
+            if let Some(cost) = HistogramBias::new(&lv.centers, colors, params.histogram_cost) {
+                penalty.resize(lv.ns, 0.0);
+                for (p, c) in penalty.iter_mut().zip(&lv.centers) {
+                    *p += fan_len * cost.excess(*c);
+                }
+            }
             let step = EStep {
                 space: PatchSpace {
                     fan: lv.src_fans.shape(),

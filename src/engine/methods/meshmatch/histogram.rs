@@ -10,6 +10,9 @@
 //! votes. Kopf et al. use 16 bins and `λ = 1` in counts; the share scaling is ours, so that `λ`
 //! does not depend on the mesh size.
 //!
+//! The same excess, times the fan dimension, is the E-step's optional histogram cost per source
+//! vertex (`histogram_cost`, default off; README "Histogram cost in the E-step").
+//!
 //! Written by hand: no crate does this.
 
 /// Bins per channel (Kopf et al. 2007: 16).
@@ -76,10 +79,17 @@ impl HistogramBias {
         })
     }
 
+    /// `λ · BINS · Σ_ch max(0, H_t − H_s)` at colour `c`: how over-represented `c` is in the
+    /// target (0 where no channel's bin is). The E-step's histogram cost (`histogram_cost`) is
+    /// this times the fan dimension.
+    pub fn excess(&self, c: [f32; 3]) -> f32 {
+        let b = self.bins(c);
+        self.excess[0][b[0]] + self.excess[1][b[1]] + self.excess[2][b[2]]
+    }
+
     /// The factor a vote for colour `c` is multiplied by, in (0, 1].
     pub fn factor(&self, c: [f32; 3]) -> f32 {
-        let b = self.bins(c);
-        1.0 / (1.0 + self.excess[0][b[0]] + self.excess[1][b[1]] + self.excess[2][b[2]])
+        1.0 / (1.0 + self.excess(c))
     }
 }
 
@@ -107,6 +117,9 @@ mod tests {
             "{}",
             bias.factor(white)
         );
+        // The E-step cost's excess: white's, black none.
+        assert!((bias.excess(white) - 3.0 * 16.0 * 0.3).abs() < 1e-4);
+        assert_eq!(bias.excess(black), 0.0);
         let same = HistogramBias::new(&source, &source, 1.0).unwrap();
         assert_eq!((same.factor(black), same.factor(white)), (1.0, 1.0));
         assert!(HistogramBias::new(&source, &target, 0.0).is_none());
