@@ -24,7 +24,8 @@
 //!   private `patch_match` the patches, the two-step matching and SYNTHESIZE-LEVEL.
 //! - [`pipeline`]: the steps in order, from surfaces to the finest target level's displacement.
 //! - [`outputs`]: the displacement and normal-map textures, TANGENT, the replaced UV-less
-//!   primitives and `displaced.glb`; [`params`] the `params` object.
+//!   primitives and `displaced.glb`, both maps sampled once per texel by the private `maps`;
+//!   [`params`] the `params` object.
 //!
 //! - [`source_texture`]: a source whose detail is a displacement texture
 //!   (`materials[i].extras.retex_displacement`, what `detail` writes); the source is then the base.
@@ -36,6 +37,7 @@ pub mod displacement;
 pub mod fine_detail;
 pub mod geometric_features;
 pub mod hierarchy;
+mod maps;
 pub mod metric;
 pub mod outputs;
 pub mod params;

@@ -151,8 +151,9 @@ pub struct RefineReport {
     pub mismatch_after: f64,
     /// Seconds of the set-up (translations).
     pub seconds: f64,
-    /// Points the textures asked for (every texel twice: displacement and normal map) and the
-    /// source reads made for them (one where the corners' images agree, up to three where not).
+    /// Points the textures asked for (every covered texel once: one sample serves the
+    /// displacement and the normal map; and the range's samples before the bake) and the source
+    /// reads made for them (one where the corners' images agree, up to three where not).
     pub points: u64,
     /// See `points`.
     pub reads: u64,
@@ -277,7 +278,7 @@ impl<'a> Refinement<'a> {
         let mut r = Refinement {
             bvh: Bvh::build(&input.source.positions, &input.source.faces),
             source_normals: area_weighted_normals(input.source),
-            source_gradients: super::outputs::vertex_gradients(
+            source_gradients: super::maps::vertex_gradients(
                 input.source,
                 input.source_displacement,
             ),

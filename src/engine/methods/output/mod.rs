@@ -23,17 +23,24 @@
 //!   without UVs (not skinned or morphed) get a generated atlas instead ([`atlas`]): they are
 //!   replaced by copies carrying TEXCOORD_0 and baked into one texture of a new material. Other
 //!   outputs (normal maps, ...) and outputs without a vertex attribute (ElastiFace writes COLOR_0
-//!   on the source's own vertices itself) are left as they were by [`write_field`]; a method
-//!   writing several fields builds the atlas once ([`atlas::build`]) and bakes each through it
-//!   with [`write_field_in_atlas`], so its fields keep one layout (`detail`'s normal map and
-//!   displacement texture).
+//!   on the source's own vertices itself) are left as they were by [`write_field`].
+//!
+//! A method writing several textures implements [`SurfaceFields`] (one evaluation per point
+//! gives every output's values) and bakes all of them in one texel loop with [`write_fields`],
+//! through an atlas it built once ([`atlas::build`]) when it wants one, so its textures keep one
+//! layout and share their per-point work (`detail`'s normal map and displacement texture share
+//! the closest point and the texture-space refinement; [`fields`] says why). [`write_field`]
+//! runs through the same loop with one output.
 //!
 //! The output depends only on the field's values, never on the thread count: texels and
 //! vertices are independent and results are collected in order.
 
 pub mod atlas;
+pub mod fields;
 pub mod texels;
 pub mod vertices;
+
+pub use fields::SurfaceFields;
 
 use serde::Serialize;
 
@@ -198,90 +205,77 @@ pub fn write_field(
     finish(
         asset,
         constraints,
-        output,
-        field,
+        std::slice::from_ref(output),
+        &fields::Single(field),
         layout,
         atlas_edits,
         report,
         control,
     )
+    .map(only)
 }
 
-/// As [`write_field`], with the primitives of `atlas` (built by the caller with
-/// [`atlas::build`], shared by several fields so they keep one layout) baked through it. The
-/// atlas's own edits (the replaced primitives) are the caller's to emit, once.
-///
-/// # Errors
-/// [`Cancelled`].
-pub(crate) fn write_field_in_atlas(
-    asset: &Asset,
-    constraints: &Constraints,
-    output: &FieldOutput,
-    field: &dyn SurfaceField,
-    atlas: &atlas::AtlasLayout,
-    control: &Control,
-) -> Result<(Vec<Edit>, OutputReport), Cancelled> {
-    let mut report = OutputReport::default();
-    let mut layout = texels::layout(asset, constraints, &mut report.warnings);
-    let replaced = atlas.primitives();
-    layout.vertex_path.retain(|(p, _)| !replaced.contains(p));
-    layout.atlas = atlas.tris.clone();
-    report.atlas = Some(atlas.report.clone());
-    finish(
-        asset,
-        constraints,
-        output,
-        field,
-        layout,
-        Vec::new(),
-        report,
-        control,
-    )
+/// The only output's edits and report.
+fn only(mut per_output: Vec<(Vec<Edit>, OutputReport)>) -> (Vec<Edit>, OutputReport) {
+    per_output.pop().unwrap_or_default()
 }
 
-/// The bake, padding, encoding and vertex path shared by [`write_field`] and
-/// [`write_field_in_atlas`]; `atlas_edits` go first (the texture edit assigns its new material
-/// to the replaced primitives).
+/// The bake, padding, encoding and vertex path shared by [`write_field`] and [`write_fields`]:
+/// one texel loop for all `outputs` (output `k` is `fields`' value `k`); per output its edits and report (`report` plus its own textures and
+/// vertex figures). `atlas_edits` go first in the first output's edits (its texture edit
+/// assigns the new material to the replaced primitives).
 #[allow(clippy::too_many_arguments)]
 fn finish(
     asset: &Asset,
     constraints: &Constraints,
-    output: &FieldOutput,
-    field: &dyn SurfaceField,
+    outputs: &[FieldOutput],
+    fields: &dyn SurfaceFields,
     layout: texels::Layout,
     atlas_edits: Vec<Edit>,
-    mut report: OutputReport,
+    report: OutputReport,
     control: &Control,
-) -> Result<(Vec<Edit>, OutputReport), Cancelled> {
+) -> Result<Vec<(Vec<Edit>, OutputReport)>, Cancelled> {
     let size = constraints.output.texture_size;
     let span = control.span(0.0, 0.75);
-    let baked = texels::bake_groups(asset, &layout, size, field, control)?;
+    let baked = texels::bake_groups(asset, &layout, size, fields, outputs.len(), control)?;
     drop(span);
 
     let span = control.span(0.75, 0.9);
     let finished =
-        texels::finish_textures(baked, size, constraints.output.padding, output, control)?;
-    let mut edits = atlas_edits;
-    for (texture, tr) in finished {
-        edits.push(texture);
-        report.textures.push(tr);
-    }
+        texels::finish_textures(baked, size, constraints.output.padding, outputs, control)?;
     drop(span);
 
-    let _span = control.span(0.9, 1.0);
-    let vertex_edits = vertices::write_vertex_values(
-        asset,
-        constraints,
-        &layout,
-        output,
-        field,
-        control,
-        &mut report,
-    )?;
-    edits.extend(vertex_edits.into_edits());
-    Ok((edits, report))
+    let mut atlas_edits = Some(atlas_edits);
+    let n = outputs.len() as f64;
+    let mut per_output = Vec::with_capacity(outputs.len());
+    for (k, (output, textures)) in outputs.iter().zip(finished).enumerate() {
+        let mut report = report.clone();
+        let mut edits = atlas_edits.take().unwrap_or_default();
+        for (texture, tr) in textures {
+            edits.push(texture);
+            report.textures.push(tr);
+        }
+        let _span = control.span(0.9 + 0.1 * k as f64 / n, 0.9 + 0.1 * (k + 1) as f64 / n);
+        let vertex_edits = vertices::write_vertex_values(
+            asset,
+            constraints,
+            &layout,
+            output,
+            fields::OutputOf {
+                fields,
+                index: k,
+                count: outputs.len(),
+            },
+            control,
+            &mut report,
+        )?;
+        edits.extend(vertex_edits.into_edits());
+        per_output.push((edits, report));
+    }
+    Ok(per_output)
 }
 
 pub(crate) use crate::engine::math::{cross, dot, normal_of, sub, to_f32};
 pub(crate) use atlas::{build as build_atlas, replaceable as atlas_replaceable, AtlasLayout};
+pub(crate) use fields::write_fields;
 pub(crate) use texels::uv_set_of;

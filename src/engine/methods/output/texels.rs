@@ -1,17 +1,18 @@
-//! The UV path of [`super::write_field`]: the asset's triangles grouped by material, each
-//! group's UV layout rasterized and the field evaluated at every covered texel, then padding and
-//! encoding into a texture edit.
+//! The UV path of [`super::write_field`] and [`super::write_fields`]: the asset's triangles
+//! grouped by material, each group's UV layout rasterized once and the fields evaluated once at
+//! every covered texel into one image per output, then each image padded and encoded into a
+//! texture edit.
 
 use rayon::prelude::*;
 
 use super::{
-    normal_of, to_f32, FieldOutput, SurfaceField, SurfaceSample, TexelEncoding, TextureReport,
+    normal_of, to_f32, FieldOutput, SurfaceFields, SurfaceSample, TexelEncoding, TextureReport,
 };
 use crate::engine::asset::constraints::Constraints;
 use crate::engine::asset::edits::{Edit, EncodedImage, TextureWrap};
 use crate::engine::asset::Asset;
-use crate::engine::control::{Cancelled, Control};
-use crate::engine::texture::bake::rasterize_uv_layout;
+use crate::engine::control::{Cancelled, Control, StageProgress};
+use crate::engine::texture::bake::{rasterize_uv_layout, TexelMap};
 use crate::engine::texture::encode::encode_png_srgb;
 use crate::engine::texture::pad::pad;
 
@@ -94,23 +95,31 @@ pub(super) fn layout(
     out
 }
 
-/// Texels of one group after evaluation, before padding.
+/// One output's texels of one group after evaluation, before padding.
+struct Image {
+    pixels: Vec<[f32; 4]>,
+    /// Texels the output has a value at.
+    valid: Vec<bool>,
+    report: TextureReport,
+}
+
+/// Texels of one group after evaluation, before padding: one image per output.
 pub(super) struct Baked<'a> {
     material: Option<usize>,
     /// The atlas group (new material, TEXCOORD_0).
     atlas: bool,
     tris: &'a [PlacedTriangle],
-    pixels: Vec<[f32; 4]>,
-    valid: Vec<bool>,
-    report: TextureReport,
+    images: Vec<Image>,
 }
 
-/// Rasterizes every group's UV layout and evaluates the field at its covered texels.
+/// Rasterizes every group's UV layout once and evaluates `fields` at its covered texels, into
+/// `outputs` images per group.
 pub(super) fn bake_groups<'a>(
     asset: &Asset,
     layout: &'a Layout,
     size: u32,
-    field: &dyn SurfaceField,
+    fields: &dyn SurfaceFields,
+    outputs: usize,
     control: &Control,
 ) -> Result<Vec<Baked<'a>>, Cancelled> {
     let groups: Vec<(Option<usize>, bool, &[PlacedTriangle])> = layout
@@ -126,69 +135,112 @@ pub(super) fn bake_groups<'a>(
         let uvs: Vec<[[f32; 2]; 3]> = tris.iter().map(|t| t.uv).collect();
         let map = rasterize_uv_layout(&uvs, size, size);
         control.check()?;
-        let mut pixels = vec![[0.0f32; 4]; (size * size) as usize];
-        let mut valid = vec![false; pixels.len()];
-        let row = size as usize;
-        pixels
-            .par_chunks_mut(row * 16)
-            .zip(valid.par_chunks_mut(row * 16))
-            .enumerate()
-            .try_for_each(|(chunk, (px, ok))| {
-                // Chunks that start after cancellation do no work.
-                control.check()?;
-                let base = chunk * row * 16;
-                let mut hint = None;
-                for i in 0..px.len() {
-                    if let Some(hit) = map.hits[base + i] {
-                        let t = &tris[hit.triangle as usize];
-                        let b = hit.bary;
-                        let mut p = [0.0f32; 3];
-                        for (k, pk) in p.iter_mut().enumerate() {
-                            *pk =
-                                b[0] * t.world[0][k] + b[1] * t.world[1][k] + b[2] * t.world[2][k];
-                        }
-                        let at = SurfaceSample {
-                            primitive: t.primitive,
-                            triangle: t.triangle,
-                            barycentric: b,
-                            position: p,
-                            normal: t.normal,
-                        };
-                        let mut value = [0.0f32; 4];
-                        if let Some(h) = field.sample(&at, hint, &mut value) {
-                            px[i] = value;
-                            ok[i] = true;
-                            hint = Some(h);
-                        }
-                    }
-                }
-                stage.tick(px.len() as u64)
-            })?;
+        let texels = bake_texels(&map, tris, size, fields, outputs, &stage, control)?;
         let covered = map.covered();
-        let unmatched = covered - valid.iter().filter(|v| **v).count() as u64;
+        let tex_coord = match atlas {
+            true => 0,
+            false => tris.first().map_or(0, |t| uv_set_of(asset, t.primitive)),
+        };
+        let images = texels
+            .into_iter()
+            .map(|(pixels, valid)| Image {
+                report: TextureReport {
+                    material,
+                    size,
+                    tex_coord,
+                    triangles: tris.len(),
+                    covered,
+                    overlapped: map.overlapped,
+                    unmatched: covered - valid.iter().filter(|v| **v).count() as u64,
+                    padded: 0,
+                    filled: 0,
+                },
+                pixels,
+                valid,
+            })
+            .collect();
         baked.push(Baked {
             material,
             atlas,
             tris,
-            pixels,
-            valid,
-            report: TextureReport {
-                material,
-                size,
-                tex_coord: match atlas {
-                    true => 0,
-                    false => tris.first().map_or(0, |t| uv_set_of(asset, t.primitive)),
-                },
-                triangles: tris.len(),
-                covered,
-                overlapped: map.overlapped,
-                unmatched,
-                padded: 0,
-                filled: 0,
-            },
+            images,
         });
     }
     Ok(baked)
+}
+
+/// One output's texels of one group and which of them have a value.
+type Texels = (Vec<[f32; 4]>, Vec<bool>);
+
+/// The texel loop of one group: every covered texel sampled once, its values written into
+/// each output's texels (parallel over chunks of 16 rows, each chunk carrying the hint from
+/// texel to texel). Per output: texels and which have a value.
+fn bake_texels(
+    map: &TexelMap,
+    tris: &[PlacedTriangle],
+    size: u32,
+    fields: &dyn SurfaceFields,
+    outputs: usize,
+    stage: &StageProgress<'_>,
+    control: &Control,
+) -> Result<Vec<Texels>, Cancelled> {
+    let len = (size * size) as usize;
+    let rows16 = size as usize * 16;
+    let mut images: Vec<Texels> = (0..outputs)
+        .map(|_| (vec![[0.0f32; 4]; len], vec![false; len]))
+        .collect();
+    // Per chunk of 16 rows, every output's part of it.
+    type Part<'p> = (&'p mut [[f32; 4]], &'p mut [bool]);
+    let mut chunks: Vec<Vec<Part<'_>>> = (0..len.div_ceil(rows16.max(1)))
+        .map(|_| Vec::with_capacity(outputs))
+        .collect();
+    for (pixels, valid) in &mut images {
+        let parts = pixels.chunks_mut(rows16).zip(valid.chunks_mut(rows16));
+        for (chunk, part) in chunks.iter_mut().zip(parts) {
+            chunk.push(part);
+        }
+    }
+    chunks
+        .into_par_iter()
+        .enumerate()
+        .try_for_each(|(chunk, mut parts)| {
+            // Chunks that start after cancellation do no work.
+            control.check()?;
+            let base = chunk * rows16;
+            let count = rows16.min(len - base);
+            let mut hint = None;
+            let mut values = vec![None; outputs];
+            for i in 0..count {
+                let Some(hit) = map.hits[base + i] else {
+                    continue;
+                };
+                let t = &tris[hit.triangle as usize];
+                let b = hit.bary;
+                let mut p = [0.0f32; 3];
+                for (k, pk) in p.iter_mut().enumerate() {
+                    *pk = b[0] * t.world[0][k] + b[1] * t.world[1][k] + b[2] * t.world[2][k];
+                }
+                let at = SurfaceSample {
+                    primitive: t.primitive,
+                    triangle: t.triangle,
+                    barycentric: b,
+                    position: p,
+                    normal: t.normal,
+                };
+                values.fill(None);
+                if let Some(h) = fields.sample(&at, hint, &mut values) {
+                    hint = Some(h);
+                }
+                for ((px, ok), value) in parts.iter_mut().zip(&values) {
+                    if let Some(v) = value {
+                        px[i] = *v;
+                        ok[i] = true;
+                    }
+                }
+            }
+            stage.tick(count as u64)
+        })?;
+    Ok(images)
 }
 
 /// Encodes padded texels as `encoding` says.
@@ -207,43 +259,55 @@ fn encode(name: String, pixels: &[[f32; 4]], size: u32, encoding: TexelEncoding)
     }
 }
 
-/// Pads and encodes the baked groups (in parallel, order kept).
+/// Pads and encodes the baked groups' images (in parallel, order kept): per output, its
+/// texture edits and reports in group order.
 pub(super) fn finish_textures(
     baked: Vec<Baked<'_>>,
     size: u32,
     padding: u32,
-    output: &FieldOutput,
+    outputs: &[FieldOutput],
     control: &Control,
-) -> Result<Vec<(Edit, TextureReport)>, Cancelled> {
-    let pad_stage = control.stage("pad", baked.len() as u64)?;
-    baked
+) -> Result<Vec<Vec<(Edit, TextureReport)>>, Cancelled> {
+    let pad_stage = control.stage("pad", (baked.len() * outputs.len()) as u64)?;
+    let mut work = Vec::new();
+    for b in baked {
+        let mut prims: Vec<usize> = b.tris.iter().map(|t| t.primitive).collect();
+        prims.sort_unstable();
+        prims.dedup();
+        for (k, image) in b.images.into_iter().enumerate() {
+            work.push((k, b.material, b.atlas, prims.clone(), image));
+        }
+    }
+    let done: Vec<(usize, Edit, TextureReport)> = work
         .into_par_iter()
-        .map(|mut b| {
+        .map(|(k, material, atlas, prims, mut image)| {
             control.check()?;
-            let pr = pad(&mut b.pixels, &b.valid, size, size, padding);
-            b.report.padded = pr.padded;
-            b.report.filled = pr.filled;
-            let mut prims: Vec<usize> = b.tris.iter().map(|t| t.primitive).collect();
-            prims.sort_unstable();
-            prims.dedup();
-            let name = match b.material {
-                _ if b.atlas => format!("{}_atlas", output.name),
+            let output = &outputs[k];
+            let pr = pad(&mut image.pixels, &image.valid, size, size, padding);
+            image.report.padded = pr.padded;
+            image.report.filled = pr.filled;
+            let name = match material {
+                _ if atlas => format!("{}_atlas", output.name),
                 Some(m) => format!("{}_material{m}", output.name),
                 None => format!("{}_default", output.name),
             };
-            let image = encode(name, &b.pixels, size, output.encoding);
+            let encoded = encode(name, &image.pixels, size, output.encoding);
             pad_stage.tick(1)?;
-            Ok((
-                Edit::SetTexture {
-                    material: b.material,
-                    slot: output.slot,
-                    image,
-                    tex_coord: b.report.tex_coord,
-                    wrap: TextureWrap::Repeat,
-                    primitives: prims,
-                },
-                b.report,
-            ))
+            let edit = Edit::SetTexture {
+                material,
+                slot: output.slot,
+                image: encoded,
+                tex_coord: image.report.tex_coord,
+                wrap: TextureWrap::Repeat,
+                primitives: prims,
+            };
+            Ok((k, edit, image.report))
         })
-        .collect()
+        .collect::<Result<_, Cancelled>>()?;
+    let mut per_output: Vec<Vec<(Edit, TextureReport)>> =
+        outputs.iter().map(|_| Vec::new()).collect();
+    for (k, edit, report) in done {
+        per_output[k].push((edit, report));
+    }
+    Ok(per_output)
 }

@@ -1,15 +1,16 @@
-//! The vertex path of [`super::write_field`]: primitives without a UV layout (or all of them,
-//! when `output.vertex_colors` is set) get the field as a vertex attribute (COLOR_0 for colour),
+//! The vertex path of [`super::write_field`] and [`super::write_fields`]: primitives without a
+//! UV layout (or all of them, when `output.vertex_colors` is set) get the field as a vertex
+//! attribute (COLOR_0 for colour),
 //! on a refined copy with about `vertex_samples` vertices in all, or on their own vertices when
 //! vertex colours were requested or the primitive is skinned or morphed (a refined copy would
 //! drop its joints and targets).
 
 use rayon::prelude::*;
 
+use super::fields::OutputOf;
 use super::texels::Layout;
 use super::{
-    cross, dot, normal_of, sub, to_f32, FieldOutput, OutputReport, SurfaceField, SurfaceSample,
-    VertexColorReport,
+    cross, dot, normal_of, sub, to_f32, FieldOutput, OutputReport, SurfaceSample, VertexColorReport,
 };
 use crate::engine::asset::constraints::Constraints;
 use crate::engine::asset::edits::{AttributeData, Edit, PrimitiveGeometry, TextureSlot};
@@ -83,14 +84,14 @@ fn refined_vertices(asset: &Asset, p: usize, max_edge: f32) -> VertexGeometry {
     }
 }
 
-/// Evaluates the field at every vertex of `g` (placed by instance `ii`), in chunks that each
-/// check for cancellation first.
+/// Evaluates one output of the fields at every vertex of `g` (placed by instance `ii`), in
+/// chunks that each check for cancellation first.
 fn sample_vertices(
     asset: &Asset,
     p: usize,
     ii: usize,
     g: &VertexGeometry,
-    field: &dyn SurfaceField,
+    field: OutputOf<'_>,
     control: &Control,
 ) -> Result<Vec<Option<[f32; 4]>>, Cancelled> {
     let inst = &asset.instances[ii];
@@ -119,6 +120,7 @@ fn sample_vertices(
         .zip(g.sources.par_chunks(4096))
         .map(|((qs, ns), ss)| {
             control.check()?;
+            let mut scratch = Vec::new();
             Ok(qs
                 .iter()
                 .zip(ns)
@@ -133,8 +135,7 @@ fn sample_vertices(
                         position: *q,
                         normal: n.map(|x| x / l),
                     };
-                    let mut value = [0.0f32; 4];
-                    field.sample(&at, None, &mut value).map(|_| value)
+                    field.sample(&at, &mut scratch)
                 })
                 .collect())
         })
@@ -142,13 +143,14 @@ fn sample_vertices(
     Ok(found.into_iter().flatten().collect())
 }
 
-/// The vertex path: evaluates the field at the (refined) vertices of every collected primitive.
+/// The vertex path: evaluates one output of the fields at the (refined) vertices of every
+/// collected primitive.
 pub(super) fn write_vertex_values(
     asset: &Asset,
     constraints: &Constraints,
     layout: &Layout,
     output: &FieldOutput,
-    field: &dyn SurfaceField,
+    field: OutputOf<'_>,
     control: &Control,
     report: &mut OutputReport,
 ) -> Result<VertexEdits, Cancelled> {
