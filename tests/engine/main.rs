@@ -28,6 +28,7 @@ mod correlation_sweep;
 mod correlation_synthesis;
 mod detail_atlas;
 mod detail_displacement;
+mod detail_equal_weights;
 mod detail_features;
 mod detail_method;
 mod detail_metric;

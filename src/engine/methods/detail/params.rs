@@ -58,6 +58,12 @@ pub struct DetailParams {
     /// The metric's ℓ1 weight λ (§3.2.3). Default 0.1 (paper).
     #[schemars(range(min = 0, max = 100))]
     pub lambda: f64,
+    /// λ relative to the strongest covariance between a geometric feature and the detail
+    /// (`B̂`'s largest diagonal entry; λ ≥ 2 then gives `M = 0` whatever the units). Default
+    /// false: λ is in the squared units of the detail features (world-unit displacements), where
+    /// the paper's 0.1 leaves `M` zero for detail below a few tenths of a unit (README
+    /// "Fig. 16a").
+    pub lambda_relative: bool,
     /// Finest-level source vertices the metric is learned on (farthest-point samples).
     /// Default 4,000.
     #[schemars(range(min = 16, max = 100_000))]
@@ -106,6 +112,7 @@ impl Default for DetailParams {
             max_displacement: 0.05,
             metric: MetricChoice::Learned,
             lambda: super::metric::DEFAULT_LAMBDA,
+            lambda_relative: false,
             metric_samples: pipeline.metric_samples,
             feature_vertices: pipeline.feature_vertices,
             patch_size: synthesis.initial_patch_size,
@@ -166,6 +173,7 @@ impl DetailParams {
             },
             metric_samples: self.metric_samples,
             feature_vertices: self.feature_vertices,
+            lambda_relative: self.lambda_relative,
             synthesis: SynthesisParams {
                 initial_patch_size: self.patch_size,
                 candidates: self.candidates,

@@ -70,6 +70,8 @@ pub struct PipelineParams {
     pub metric_samples: usize,
     /// Vertex limit of the level the geometric features are computed on.
     pub feature_vertices: usize,
+    /// λ relative to the largest diagonal entry of `B̂` ([`MetricProblem::relative`]).
+    pub lambda_relative: bool,
     /// The synthesis.
     pub synthesis: SynthesisParams,
 }
@@ -86,6 +88,7 @@ impl Default for PipelineParams {
             metric: MetricParams::default(),
             metric_samples: 4000,
             feature_vertices: 20_000,
+            lambda_relative: false,
             synthesis: SynthesisParams::default(),
         }
     }
@@ -173,6 +176,9 @@ pub struct MetricReport {
     pub objective: f64,
     /// Samples the metric was learned on.
     pub samples: usize,
+    /// The learned `M` is zero up to the solver's residue (λ too large for how strongly the
+    /// geometry predicts the detail, see `lambda_relative`).
+    pub zero_metric: bool,
 }
 
 /// Seconds per step.
@@ -259,7 +265,15 @@ fn interior_vertices(surface: &Surface, reach: f64) -> Vec<bool> {
     dist.iter().map(|&d| d > reach).collect()
 }
 
-/// Learns (or sets) the metric on samples of the finest source level.
+/// A learned `M` whose largest entry is at most this fraction of `B̂`'s largest is zero up to
+/// the solver's residue (`M` scales as `B̂` over `Ĉ²`, and `Ĉ` is O(1) for z-scored features):
+/// λ was too large for the detail's correlations (λ ≥ 2 max|B̂| gives `M = 0`). The report says
+/// so (`zero_metric`); the synthesis then follows the residue's factor. Ours.
+const ZERO_METRIC: f64 = 1e-9;
+
+/// Learns (or sets) the metric on samples of the finest source level. With
+/// `params.lambda_relative` the problem is normalised so that λ is relative to the strongest
+/// feature-detail covariance ([`MetricProblem::relative`]).
 fn learn(
     finest: &Surface,
     disp: &[f64],
@@ -282,9 +296,24 @@ fn learn(
         .collect();
     let problem = MetricProblem::from_features(&geo, DIM, &detail, FEATURES)
         .map_err(step("metric", control))?;
+    let problem = match params.lambda_relative {
+        true => problem.relative(),
+        false => problem,
+    };
     control.check()?;
     let learned = metric_of_kind(params.metric_kind, &problem, &params.metric)
         .map_err(step("metric", control))?;
+    let largest = |m: &Mat<f64>| {
+        let mut big = 0.0f64;
+        for j in 0..m.ncols() {
+            for i in 0..m.nrows() {
+                big = big.max(m[(i, j)].abs());
+            }
+        }
+        big
+    };
+    let zero = params.metric_kind == MetricKind::Learned
+        && largest(&learned.m) <= ZERO_METRIC * largest(&problem.b);
     let a = factor(&learned.m).map_err(step("metric", control))?;
     let (top_value, top) = top_eigenvector(&learned.m).map_err(step("metric", control))?;
     let report = MetricReport {
@@ -302,6 +331,7 @@ fn learn(
         dual_residual: learned.dual_residual,
         objective: learned.objective,
         samples: samples.len(),
+        zero_metric: zero,
     };
     Ok((a, report))
 }
