@@ -356,9 +356,23 @@ fn a_displacement_texture_source_is_read_as_base_plus_map_and_bad_ones_are_named
     let (source, base, target) = sphere_case();
     let c = sphere_constraints();
     let first = run(&source, Some(&base), &target, c.clone());
-    // Equal weights: this checks the map's reading. With the learned metric this self-transfer
-    // loses the detail (upper 0.0002, lower 0.0002: the metric puts 0.41 / 0.39 of its diagonal
-    // on HKS / WKS, which are symmetric about the equator here; not understood yet, README).
+    // Equal weights: this checks the map's reading. With the default absolute λ the learned
+    // metric is zero (solver residue, `zero_metric`; upper 0.0002, lower 0.0002: the residue
+    // weights HKS / WKS 0.41 / 0.39, symmetric about the equator here); with `lambda_relative` it
+    // learns the normal (0.55 of its diagonal), height and box y (0.13 each) and keeps the
+    // detail: upper 0.00337, lower 0.00012 (equal weights 0.00352 / 0.00016). README "The default
+    // λ leaves the learned metric zero".
+    let mut learned = c.clone();
+    learned["params"]["lambda_relative"] = json!(true);
+    let relative = run(&first.model, None, &target, learned);
+    let metric = &relative.report.method_report["metric"];
+    assert_eq!(metric["zero_metric"], false, "{metric}");
+    let (upper, lower) = upper_lower_std(&relative);
+    println!("learned (lambda_relative) from the map source: upper {upper:.5}, lower {lower:.5}");
+    assert!(
+        upper > 2.0 * lower && upper > 0.002,
+        "upper {upper} lower {lower}"
+    );
     let mut c2 = c.clone();
     c2["params"]["metric"] = json!("identity");
     let second = run(&first.model, None, &target, c2);
