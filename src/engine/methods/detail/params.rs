@@ -61,8 +61,8 @@ pub struct DetailParams {
     /// λ relative to the strongest covariance between a geometric feature and the detail
     /// (`B̂`'s largest diagonal entry; λ ≥ 2 then gives `M = 0` whatever the units). Default
     /// false: λ is in the squared units of the detail features (world-unit displacements), where
-    /// the paper's 0.1 leaves `M` zero for detail below a few tenths of a unit (README
-    /// "Fig. 16a").
+    /// the paper's 0.1 leaves `M` zero for detail below a few tenths of a unit (README "The
+    /// default λ leaves the learned metric zero").
     pub lambda_relative: bool,
     /// Finest-level source vertices the metric is learned on (farthest-point samples).
     /// Default 4,000.
