@@ -46,6 +46,8 @@
 //! and 0.00228 / 0.00007 (34.8, 0.96); identity is unchanged. The test runs the last three: 108 s in all (27 + 38 + 43 s,
 //! learned about 10 s each, identity 18-34 s), about 3 minutes while other builds share the cores.
 
+use crate::detail_features::metric_features::extrude_profile;
+use crate::detail_method::std;
 use retex::engine::control::Control;
 use retex::engine::mesh::Surface;
 use retex::engine::methods::detail::displacement::area_weighted_normals;
@@ -73,24 +75,7 @@ fn strip(segments: &[(char, f64)], width: f64, h: f64) -> (Surface, Vec<bool>) {
             _ => y += len,
         }
     }
-    let nx = (width / h).round() as usize;
-    let mut positions = Vec::new();
-    let mut tread = Vec::new();
-    for (p, t) in &profile {
-        for i in 0..=nx {
-            positions.push([(i as f64 * h) as f32, p[1] as f32, p[0] as f32]);
-            tread.push(*t);
-        }
-    }
-    let id = |j: usize, i: usize| (j * (nx + 1) + i) as u32;
-    let mut faces = Vec::new();
-    for j in 0..profile.len() - 1 {
-        for i in 0..nx {
-            faces.push([id(j, i), id(j + 1, i), id(j + 1, i + 1)]);
-            faces.push([id(j, i), id(j + 1, i + 1), id(j, i + 1)]);
-        }
-    }
-    (Surface::from_triangles(positions, faces), tread)
+    extrude_profile(&profile, width, h)
 }
 
 /// `"R2 T1 …"` → segments.
@@ -113,11 +98,6 @@ fn tread_bumps(s: &Surface, tread: &[bool], phase: f64) -> Surface {
     out
 }
 
-fn std_dev(v: &[f64]) -> f64 {
-    let m = v.iter().sum::<f64>() / v.len().max(1) as f64;
-    (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len().max(1) as f64).sqrt()
-}
-
 /// Detail std on the finest target level's up-facing vertices (normal y > 0.8) and on the
 /// others (normal y < 0.2; corners in between are left out).
 fn inside_outside(out: &DetailTransfer) -> (f64, f64) {
@@ -130,7 +110,7 @@ fn inside_outside(out: &DetailTransfer) -> (f64, f64) {
             other.push(*d);
         }
     }
-    (std_dev(&up), std_dev(&other))
+    (std(&up), std(&other))
 }
 
 #[test]

@@ -39,29 +39,44 @@ pub(crate) fn tiers(
             profile.push(([z0 + run * i as f64 / nt as f64, y0 + rise], i < nt));
         }
     }
+    let (surface, tread) = extrude_profile(&profile, width, h);
+    let nx = (width / h).round() as usize;
+    let length = (profile.len() - 1) as f64 * h;
+    let border = (0..surface.positions.len())
+        .map(|v| {
+            let (x, s) = ((v % (nx + 1)) as f64 * h, (v / (nx + 1)) as f64 * h);
+            x.min(width - x).min(s).min(length - s)
+        })
+        .collect();
+    (surface, tread, border)
+}
+
+/// A profile in the (z, y) plane (points with a flag each) extruded over `width` along x with
+/// spacing `h`: vertex `j · (nx + 1) + i` is profile point `j` at x = `i · h`, and carries point
+/// `j`'s flag. Normals are +y where the profile runs along +z, −z where it runs along +y.
+pub(crate) fn extrude_profile(
+    profile: &[([f64; 2], bool)],
+    width: f64,
+    h: f64,
+) -> (Surface, Vec<bool>) {
     let nx = (width / h).round() as usize;
     let mut positions = Vec::new();
-    let mut tread = Vec::new();
-    let mut border = Vec::new();
-    let length = (profile.len() - 1) as f64 * h;
-    for (j, (p, t)) in profile.iter().enumerate() {
+    let mut flags = Vec::new();
+    for (p, t) in profile {
         for i in 0..=nx {
             positions.push([(i as f64 * h) as f32, p[1] as f32, p[0] as f32]);
-            tread.push(*t);
-            let (x, s) = (i as f64 * h, j as f64 * h);
-            border.push(x.min(width - x).min(s).min(length - s));
+            flags.push(*t);
         }
     }
     let id = |j: usize, i: usize| (j * (nx + 1) + i) as u32;
     let mut faces = Vec::new();
     for j in 0..profile.len() - 1 {
         for i in 0..nx {
-            // Normals +y on treads (profile along +z), −z on risers (profile along +y).
             faces.push([id(j, i), id(j + 1, i), id(j + 1, i + 1)]);
             faces.push([id(j, i), id(j + 1, i + 1), id(j, i + 1)]);
         }
     }
-    (Surface::from_triangles(positions, faces), tread, border)
+    (Surface::from_triangles(positions, faces), flags)
 }
 
 #[test]

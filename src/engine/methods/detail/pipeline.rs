@@ -303,17 +303,8 @@ fn learn(
     control.check()?;
     let learned = metric_of_kind(params.metric_kind, &problem, &params.metric)
         .map_err(step("metric", control))?;
-    let largest = |m: &Mat<f64>| {
-        let mut big = 0.0f64;
-        for j in 0..m.ncols() {
-            for i in 0..m.nrows() {
-                big = big.max(m[(i, j)].abs());
-            }
-        }
-        big
-    };
     let zero = params.metric_kind == MetricKind::Learned
-        && largest(&learned.m) <= ZERO_METRIC * largest(&problem.b);
+        && learned.m.norm_max() <= ZERO_METRIC * problem.b.norm_max();
     let a = factor(&learned.m).map_err(step("metric", control))?;
     let (top_value, top) = top_eigenvector(&learned.m).map_err(step("metric", control))?;
     let report = MetricReport {
