@@ -28,6 +28,8 @@
 //! steps) gets the source displacement bilinearly interpolated at its chart position (shifted),
 //! blended with `w_loc = f(‖x‖ / (n/√2))` (eqs. 5-7, [`super::blend`]).
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use rayon::prelude::*;
 
 use super::blend::{location_weight, Blend};
@@ -311,48 +313,120 @@ impl Level<'_> {
         y as usize * self.side() + x as usize
     }
 
-    /// Step 1 for one source patch: the best (distance, shift) over the shifts.
-    fn feature_match(&self, sub: &[(usize, usize, u32)], p: &SourcePatch) -> (f64, (isize, isize)) {
+    /// Step 1 for one source patch: the best (distance, shift) over the shifts, or infinity
+    /// when every shift's distance is above `bound`. Exact pruning: a distance `sum / count` is
+    /// at least the partial sum over `sub.len()` (`count` never exceeds it), so a shift is
+    /// abandoned once that exceeds `bound` or the patch's best so far (only strictly worse
+    /// shifts are abandoned, so ties resolve as without pruning).
+    fn feature_match(
+        &self,
+        sub: &[(usize, usize, u32)],
+        p: &SourcePatch,
+        bound: f64,
+    ) -> (f64, (isize, isize)) {
+        const CHUNK: usize = 8;
         let r = self.r;
+        let cells = sub.len() as f64;
         let mut best = (f64::INFINITY, (0, 0));
         for sh in self.shifts() {
+            let limit = best.0.min(bound) * cells * (1.0 + 1e-9);
             let (mut sum, mut count) = (0.0, 0usize);
-            for &(ix, iy, tv) in sub {
-                let sv = p.vertex[self.source_cell(ix, iy, sh)];
-                if sv == NONE {
-                    continue;
+            let mut abandoned = false;
+            for chunk in sub.chunks(CHUNK) {
+                for &(ix, iy, tv) in chunk {
+                    let sv = p.vertex[self.source_cell(ix, iy, sh)];
+                    if sv == NONE {
+                        continue;
+                    }
+                    let t = &self.target_features[tv as usize * r..(tv as usize + 1) * r];
+                    let f = &self.source_features[sv as usize * r..(sv as usize + 1) * r];
+                    sum += feature_dist2(t, f);
+                    count += 1;
                 }
-                let t = &self.target_features[tv as usize * r..(tv as usize + 1) * r];
-                let f = &self.source_features[sv as usize * r..(sv as usize + 1) * r];
-                sum += feature_dist2(t, f);
-                count += 1;
+                if sum > limit {
+                    abandoned = true;
+                    break;
+                }
             }
-            if count > 0 && 2 * count >= sub.len() && sum / (count as f64) < best.0 {
+            if !abandoned && count > 0 && 2 * count >= sub.len() && sum / (count as f64) < best.0 {
                 best = (sum / count as f64, sh);
             }
         }
         best
     }
 
-    /// Step 2 for one candidate: the best (score, shift) against the weighted context.
+    /// Step 1 over all source patches: (distance, patch, shift) of every patch within reach of
+    /// the `k` best. A strided quarter of the patches is matched in full first; its `k`-th best
+    /// distance bounds the `k`-th best of all (a subset's `k`-th best is never better), so the
+    /// other patches are matched with that bound ([`Self::feature_match`]) and only patches
+    /// that cannot be among the `k` best are dropped. The `k` best are those without pruning.
+    fn feature_candidates(
+        &self,
+        sub: &[(usize, usize, u32)],
+        k: usize,
+    ) -> Vec<(f64, usize, (isize, isize))> {
+        const STRIDE: usize = 4;
+        let matched = |bound: f64, first: bool| {
+            self.patches
+                .par_iter()
+                .enumerate()
+                .filter(|(i, _)| (i % STRIDE == 0) == first)
+                .map(|(i, p)| {
+                    let (d, sh) = self.feature_match(sub, p, bound);
+                    (d, i, sh)
+                })
+                .filter(|c| c.0.is_finite())
+                .collect::<Vec<_>>()
+        };
+        let mut ranked = matched(f64::INFINITY, true);
+        let bound = if ranked.len() >= k && k > 0 {
+            let mut d: Vec<f64> = ranked.iter().map(|c| c.0).collect();
+            *d.select_nth_unstable_by(k - 1, f64::total_cmp).1
+        } else {
+            f64::INFINITY
+        };
+        ranked.extend(matched(bound, false));
+        ranked
+    }
+
+    /// Step 2 for one candidate: the best (score, shift) against the weighted context, or
+    /// infinity when every shift scores above `bound` (the best score of any candidate so far,
+    /// shared). Exact pruning: a shift's score `sum / wsum` is at least its partial sum over
+    /// `weight_total` (all the context's weight), so a shift is abandoned once that exceeds the
+    /// bound, which no longer changes which candidate and shift win (ties included: only
+    /// strictly worse shifts are abandoned).
     fn detail_match(
         &self,
         context: &[(usize, usize, f64, f64)],
+        weight_total: f64,
         p: &SourcePatch,
+        bound: &AtomicU64,
     ) -> (f64, (isize, isize)) {
+        const CHUNK: usize = 32;
         let mut best = (f64::INFINITY, (0, 0));
         for sh in self.shifts() {
+            let limit = best.0.min(f64::from_bits(bound.load(Ordering::Relaxed)));
+            let limit = limit * weight_total * (1.0 + 1e-9);
             let (mut sum, mut wsum) = (0.0, 0.0);
-            for &(ix, iy, value, w) in context {
-                let d = p.disp[self.source_cell(ix, iy, sh)];
-                if d.is_nan() {
-                    continue;
+            let mut abandoned = false;
+            for chunk in context.chunks(CHUNK) {
+                for &(ix, iy, value, w) in chunk {
+                    let d = p.disp[self.source_cell(ix, iy, sh)];
+                    if d.is_nan() {
+                        continue;
+                    }
+                    sum += w * (value - d as f64).powi(2);
+                    wsum += w;
                 }
-                sum += w * (value - d as f64).powi(2);
-                wsum += w;
+                if sum > limit {
+                    abandoned = true;
+                    break;
+                }
             }
-            if wsum > 0.0 && sum / wsum < best.0 {
+            if !abandoned && wsum > 0.0 && sum / wsum < best.0 {
                 best = (sum / wsum, sh);
+                // Non-negative floats order as their bit patterns.
+                bound.fetch_min(best.0.to_bits(), Ordering::Relaxed);
             }
         }
         best
@@ -382,16 +456,7 @@ impl Level<'_> {
                 (tv != NONE).then_some((ix, iy, tv))
             })
             .collect();
-        let mut ranked: Vec<(f64, usize, (isize, isize))> = self
-            .patches
-            .par_iter()
-            .enumerate()
-            .map(|(i, p)| {
-                let (d, sh) = self.feature_match(&sub, p);
-                (d, i, sh)
-            })
-            .filter(|c| c.0.is_finite())
-            .collect();
+        let mut ranked = self.feature_candidates(&sub, self.candidates.max(1));
         let k = self.candidates.max(1).min(ranked.len());
         if k == 0 {
             return None;
@@ -416,9 +481,11 @@ impl Level<'_> {
             stats.without_context += 1;
             return Some((ranked[0].1, ranked[0].2));
         }
+        let weight_total: f64 = context.iter().map(|c| c.3).sum();
+        let bound = AtomicU64::new(f64::INFINITY.to_bits());
         let scored: Vec<(f64, (isize, isize))> = ranked
             .par_iter()
-            .map(|c| self.detail_match(&context, &self.patches[c.1]))
+            .map(|c| self.detail_match(&context, weight_total, &self.patches[c.1], &bound))
             .collect();
         let best = (0..k).fold(0, |b, i| if scored[i].0 < scored[b].0 { i } else { b });
         if best != 0 {
