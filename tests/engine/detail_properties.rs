@@ -123,8 +123,12 @@ fn rings_keep_their_world_wavelength_on_a_target_stretched_twice() {
         "wavelength: unstretched part {left:.3} (source there {source_left:.3}), stretched part \
          {right:.3} (source 0.31-0.5, projection 0.75-1.0)"
     );
-    // Measured: unstretched 0.280 (source 0.311 there: ×0.90), stretched 0.400 (projection:
-    // 0.75-1.0).
+    // Measured: unstretched 0.280 (source 0.311 there: ×0.90), stretched 0.500 (projection:
+    // 0.75-1.0), the same at finest edges 0.03, 0.04 and 0.045. With 8 candidates instead of 16
+    // the stretched part reads 0.667 at 0.03 and 0.035: the learned metric weights the box
+    // coordinates (the source's wavelength grows along x), the 8 nearest samples lie around one
+    // ring in one phase, and the patches drift into a stretched copy (README "detail", the sweep
+    // of λ and K).
     assert!(
         (0.7..=1.4).contains(&(left / source_left)),
         "{left} vs {source_left}"
@@ -155,9 +159,9 @@ fn band_std(s: &Surface, d: &[f64], range: std::ops::Range<f64>) -> f64 {
 /// Detail std on the upper and on the lower half.
 type UpperLower = (f64, f64);
 
-/// A → B → A (Fig. 15): A a unit sphere with bumps on its upper half, B an ellipsoid. Returns
-/// the detail std (upper, lower) of A → B and of A → B → A.
-fn round_trip(lambda_relative: bool) -> (UpperLower, UpperLower) {
+/// A unit sphere with bumps on its upper half (detailed, base, the bump field) and B, an
+/// ellipsoid.
+fn bumped_sphere_and_ellipsoid() -> (Surface, Surface, Surface, impl Fn([f64; 3]) -> f64) {
     let base_a = jittered_sphere(1.0, 32, 0.0);
     let bumps = |q: [f64; 3]| {
         let w = std::f64::consts::TAU / 0.25;
@@ -176,9 +180,15 @@ fn round_trip(lambda_relative: bool) -> (UpperLower, UpperLower) {
             .collect(),
         base_a.faces.clone(),
     );
+    (detailed_a, base_a, base_b, bumps)
+}
+
+/// A → B → A (Fig. 15) with the default parameters. Returns the detail std (upper, lower) of
+/// A → B and of A → B → A.
+fn round_trip() -> (UpperLower, UpperLower) {
+    let (detailed_a, base_a, base_b, bumps) = bumped_sphere_and_ellipsoid();
     let control = Control::new();
-    let mut p = params(3, 0.04);
-    p.lambda_relative = lambda_relative;
+    let p = params(3, 0.04);
     let ab = transfer_detail(&detailed_a, Some(&base_a), &base_b, &p, &control).unwrap();
     let normals = area_weighted_normals(&ab.surface);
     let detailed_b = Surface::from_triangles(
@@ -209,35 +219,19 @@ fn round_trip(lambda_relative: bool) -> (UpperLower, UpperLower) {
     let (ab_up, ab_low) = stats(&ab);
     let (aba_up, aba_low) = stats(&aba);
     println!(
-        "lambda_relative {lambda_relative}: detail std upper / lower: source {src_up:.5}; A→A \
+        "detail std upper / lower: source {src_up:.5}; A→A \
          {aa_up:.5} / {aa_low:.5}; A→B {ab_up:.5} / {ab_low:.5}; A→B→A {aba_up:.5} / {aba_low:.5}"
     );
     ((ab_up, ab_low), (aba_up, aba_low))
 }
 
 #[test]
-fn a_to_b_to_a_keeps_the_detail_where_it_was() {
-    let ((ab_up, _), (aba_up, aba_low)) = round_trip(false);
-    // Measured: source 0.0100; A→A 0.0060 / 0.0000; A→B 0.0042 / 0.0008; A→B→A 0.0034 / 0.0024.
-    // The energy survives the round trip (0.81 of A→B's) but the place only partly: the lower
-    // half gets 0.69 of the upper half's std back (A→B: 0.20). Fig. 15's stability is therefore
-    // not reproduced for where the detail goes with the default λ, whose metric is zero up to
-    // solver residue (README); the threshold states what holds.
-    assert!(
-        aba_up > 1.2 * aba_low,
-        "A→B→A moved the detail: {aba_up} / {aba_low}"
-    );
-    assert!(
-        (0.5..=1.5).contains(&(aba_up / ab_up)),
-        "B→A changed the detail's energy: {aba_up} vs {ab_up}"
-    );
-}
-
-#[test]
-fn a_to_b_to_a_with_a_learned_metric_keeps_the_detail_on_the_upper_half() {
-    // Fig. 15's stability with `lambda_relative` (a learned, not zero, metric). Measured: A→A
-    // 0.00729 / 0.00000, A→B 0.00748 / 0.00000, A→B→A 0.00567 / 0.00000 (source 0.00998).
-    let ((ab_up, ab_low), (aba_up, aba_low)) = round_trip(true);
+fn a_to_b_to_a_keeps_the_detail_on_the_upper_half() {
+    // Fig. 15's stability. Measured: A→A 0.00758 / 0.00000, A→B 0.00739 / 0.00000, A→B→A
+    // 0.00540 / 0.00000 (source 0.00998). With the absolute λ (whose metric is zero, below) and
+    // 8 candidates it was A→B 0.00420 / 0.00080, A→B→A 0.00340 / 0.00240: the detail spread to
+    // the lower half.
+    let ((ab_up, ab_low), (aba_up, aba_low)) = round_trip();
     assert!(
         ab_up > 0.004 && ab_low < 0.1 * ab_up,
         "A→B: {ab_up} / {ab_low}"
@@ -250,6 +244,26 @@ fn a_to_b_to_a_with_a_learned_metric_keeps_the_detail_on_the_upper_half() {
         (0.5..=1.5).contains(&(aba_up / ab_up)),
         "B→A changed the detail's energy: {aba_up} vs {ab_up}"
     );
+}
+
+#[test]
+fn an_absolute_lambda_leaves_the_metric_zero_and_the_relative_one_does_not() {
+    // The detail features are world-unit displacement deviations (bumps of 0.02 here), so with
+    // λ = 0.1 absolute the ℓ1 term wins and `M` is solver residue: the report must say so. The
+    // default (λ relative to `B̂`'s largest diagonal entry) learns a metric.
+    let (detailed_a, base_a, base_b, _) = bumped_sphere_and_ellipsoid();
+    let control = Control::new();
+    for relative in [false, true] {
+        let mut p = params(3, 0.04);
+        p.lambda_relative = relative;
+        let out = transfer_detail(&detailed_a, Some(&base_a), &base_b, &p, &control).unwrap();
+        let m = &out.report.metric;
+        println!(
+            "lambda_relative {relative}: zero_metric {}, top eigenvalue {:.3e}, rank {}",
+            m.zero_metric, m.top_eigenvalue, m.rank
+        );
+        assert_eq!(m.zero_metric, !relative, "lambda_relative {relative}");
+    }
 }
 
 /// Detail std on the treads ÷ on the risers of a tiers surface (tread: y on an integer, z inside
@@ -274,10 +288,12 @@ fn tread_ratio(s: &Surface, d: &[f64]) -> (f64, f64) {
 fn learned_and_equal_weights_both_put_tread_detail_on_treads_through_the_method() {
     // The paper's Fig. 16a case shape (detail follows one feature, not position), run through
     // the whole pipeline: source 5 tiers (width 2.5) with bumps on the treads, targets of 4 and
-    // 5 tiers (width 2). Measured: treads / risers std, learned 0.00143 / 0.00003 (4 tiers) and
-    // 0.00152 / 0.00000 (5); identity 0.00194 / 0.00000 and 0.00214 / 0.00000. Both metrics put
-    // the detail where the normals say, so this case does not show the learned metric's
-    // advantage (Fig. 16a): not reproduced, stated in the README.
+    // 5 tiers (width 2). Measured: treads / risers std, learned 0.00228 / 0.00000 (4 tiers) and
+    // 0.00229 / 0.00000 (5), its diagonal 0.99 on the normals; identity 0.00140 / 0.00007 and
+    // 0.00187 / 0.00007 (with 8 candidates 0.00194 / 0.00000 and 0.00214 / 0.00000). Both put the
+    // detail where the normals say (the normals are bimodal here and decide for equal weights
+    // too); the learned metric keeps 1.2-1.6 times the energy. Fig. 16a's case, where equal
+    // weights fail, is `detail_equal_weights`.
     use crate::detail_features::metric_features::tiers;
     use retex::engine::methods::detail::metric::MetricKind;
     let (base, on_tread, _) = tiers(5, 1.0, 1.0, 2.5, 0.05);
@@ -301,7 +317,11 @@ fn learned_and_equal_weights_both_put_tread_detail_on_treads_through_the_method(
                  group {:?})",
                 out.report.metric.diagonal_by_group
             );
-            assert!(t > 0.001, "{steps} tiers, {kind:?}: treads {t}");
+            let least = match kind {
+                MetricKind::Learned => 0.0015,
+                MetricKind::Identity => 0.001,
+            };
+            assert!(t > least, "{steps} tiers, {kind:?}: treads {t}");
             assert!(
                 t > 10.0 * r,
                 "{steps} tiers, {kind:?}: treads {t}, risers {r}"

@@ -60,9 +60,9 @@ pub struct DetailParams {
     pub lambda: f64,
     /// λ relative to the strongest covariance between a geometric feature and the detail
     /// (`B̂`'s largest diagonal entry; λ ≥ 2 then gives `M = 0` whatever the units). Default
-    /// false: λ is in the squared units of the detail features (world-unit displacements), where
-    /// the paper's 0.1 leaves `M` zero for detail below a few tenths of a unit (README "The
-    /// default λ leaves the learned metric zero").
+    /// true. False: λ is in the squared units of the detail features (world-unit displacements),
+    /// where the paper's 0.1 leaves `M` zero for detail below a few tenths of a unit (README
+    /// "An absolute λ leaves the learned metric zero").
     pub lambda_relative: bool,
     /// Finest-level source vertices the metric is learned on (farthest-point samples).
     /// Default 4,000.
@@ -76,7 +76,7 @@ pub struct DetailParams {
     /// Default 3.
     #[schemars(range(min = 1, max = 63))]
     pub patch_size: usize,
-    /// Candidates of the first matching step (§3.3.1). Default 8.
+    /// Candidates of the first matching step (§3.3.1). Default 16 (README sweep).
     #[schemars(range(min = 1, max = 64))]
     pub candidates: usize,
     /// Source patches sampled per level. Default 1024.
@@ -112,7 +112,7 @@ impl Default for DetailParams {
             max_displacement: 0.05,
             metric: MetricChoice::Learned,
             lambda: super::metric::DEFAULT_LAMBDA,
-            lambda_relative: false,
+            lambda_relative: true,
             metric_samples: pipeline.metric_samples,
             feature_vertices: pipeline.feature_vertices,
             patch_size: synthesis.initial_patch_size,

@@ -88,7 +88,7 @@ impl Default for PipelineParams {
             metric: MetricParams::default(),
             metric_samples: 4000,
             feature_vertices: 20_000,
-            lambda_relative: false,
+            lambda_relative: true,
             synthesis: SynthesisParams::default(),
         }
     }
@@ -266,9 +266,11 @@ fn interior_vertices(surface: &Surface, reach: f64) -> Vec<bool> {
 }
 
 /// A learned `M` whose largest entry is at most this fraction of `B̂`'s largest is zero up to
-/// the solver's residue (`M` scales as `B̂` over `Ĉ²`, and `Ĉ` is O(1) for z-scored features):
-/// λ was too large for the detail's correlations (λ ≥ 2 max|B̂| gives `M = 0`). The report says
-/// so (`zero_metric`); the synthesis then follows the residue's factor. Ours.
+/// the solver's residue (`M` scales as `B̂` over `Ĉ²`, and `Ĉ` is O(1) for z-scored features).
+/// The report says so (`zero_metric`), and also whenever λ ≥ 2 max|B̂|: the objective's gradient
+/// at `M = 0` is `−2B̂`, so `M = 0` then satisfies the optimality condition whatever the solver
+/// returned (the residue it returns can exceed this fraction: 6.6e-14 on bumps of 0.02). The
+/// synthesis then follows the residue's factor. Ours.
 const ZERO_METRIC: f64 = 1e-9;
 
 /// Learns (or sets) the metric on samples of the finest source level. With
@@ -303,8 +305,9 @@ fn learn(
     control.check()?;
     let learned = metric_of_kind(params.metric_kind, &problem, &params.metric)
         .map_err(step("metric", control))?;
+    let b_max = problem.b.norm_max();
     let zero = params.metric_kind == MetricKind::Learned
-        && learned.m.norm_max() <= ZERO_METRIC * problem.b.norm_max();
+        && (params.metric.lambda >= 2.0 * b_max || learned.m.norm_max() <= ZERO_METRIC * b_max);
     let a = factor(&learned.m).map_err(step("metric", control))?;
     let (top_value, top) = top_eigenvector(&learned.m).map_err(step("metric", control))?;
     let report = MetricReport {

@@ -24,8 +24,15 @@
 //! - initial `n = 3`: with four levels the sides are 3, 7, 15, 31 edges, about 24-31 finest
 //!   edges, the extent of a detail-feature patch ([`super::patches`]: 16 edges at half-edge
 //!   resolution) plus its neighbourhood; smaller coarse patches just copy single vertices;
-//! - candidates `K = 8`: enough for step 2 to fix a seam, few enough that step 1's learned
-//!   metric still decides the region;
+//! - candidates `K = 16`: step 1's learned metric decides the region, step 2 the alignment.
+//!   Too few, and step 2 has nothing to align with: where the metric learns that position
+//!   predicts the detail (the stretch case's rings, whose wavelength grows along x), the 8
+//!   nearest samples lie around one ring, all in one phase, and the chain of patches drifts into
+//!   a stretched copy (stretched part's wavelength 0.667 at K = 8, 0.600 at 12, 0.500 at 16,
+//!   0.429 at 32; source at most 0.5). Too many, and step 2 picks detail that continues the
+//!   context from the wrong place: the self-transfer of `detail_synthesis` (features that
+//!   locate a point) keeps Pearson r 0.83-0.97 up to K = 20 and falls to 0.28 / 0.18 at 24 / 32.
+//!   16 lies inside the range both pass (README "detail", the sweep of λ and `K`);
 //! - good-correspondence threshold: the 5 % quantile of target-to-sample feature distances
 //!   (a scale-free notion of "good"; see [`super::sweep`]);
 //! - seeds: 3;
@@ -60,7 +67,7 @@ pub use super::patch_match::{Choice, PassStats};
 pub struct SynthesisParams {
     /// Patch side on the coarsest level, in grid steps (≈ edges). Default 3. Range 1..=63.
     pub initial_patch_size: usize,
-    /// Candidates of step 1 (`K`). Default 8. Range ≥ 1.
+    /// Candidates of step 1 (`K`). Default 16. Range ≥ 1.
     pub candidates: usize,
     /// Quantile of feature distances below which a correspondence is good. Default 0.05.
     pub good_quantile: f64,
@@ -84,7 +91,7 @@ impl Default for SynthesisParams {
     fn default() -> Self {
         Self {
             initial_patch_size: 3,
-            candidates: 8,
+            candidates: 16,
             good_quantile: 0.05,
             seeds: 3,
             source_samples: 1024,
