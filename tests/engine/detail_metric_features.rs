@@ -1,12 +1,13 @@
 //! End to end on real features (Berkiten et al. 2017, §3.2.1-3.2.3): stacked tiers whose
 //! up-facing treads carry bumps and whose risers are smooth, at many heights. The detail
 //! features (patches → steerable pyramid) and the 60-D geometric features feed the metric
-//! learning (z-scored per shape, λ = 0.1); the learned `M` must weight the normal group (the
-//! one feature that says tread or riser) most per column, and height and position little.
-//! Measured and not hidden: by *total* diagonal mass the 20 HKS columns lead (0.48 vs 0.29 for
-//! the normals on 6 tiers; see the README). Tread and
-//! riser are equally long, so the staircase is intrinsically one flat strip: the intrinsic
-//! features (geodesic statistics, HKS, WKS) cannot tell them apart except by position along it.
+//! learning (z-scored per shape, λ = 0.1 relative, the pipeline's default); the learned `M`
+//! must weight the normal group (the one feature that says tread or riser) most, and height and
+//! position little. Measured: the normals get 1.000 of the diagonal on 6 and on 5 tiers. With
+//! the absolute λ the metric was solver residue and the 20 HKS columns led by total mass (0.48
+//! vs 0.29 for the normals; README). Tread and riser are equally long, so the staircase is
+//! intrinsically one flat strip: the intrinsic features (geodesic statistics, HKS, WKS) cannot
+//! tell them apart except by position along it.
 
 use retex::engine::control::Control;
 use retex::engine::mesh::Surface;
@@ -115,7 +116,8 @@ fn learned_metric_weights_the_normal_group_for_bumps_on_treads() {
             &pick(&detail, FEATURES),
             FEATURES,
         )
-        .unwrap();
+        .unwrap()
+        .relative();
         let learned = learn_metric(&problem, &MetricParams::default()).unwrap();
         let trace: f64 = (0..DIM).map(|j| learned.m[(j, j)]).sum();
         assert!(trace > 0.0, "the metric learned nothing");
@@ -158,7 +160,7 @@ fn learned_metric_weights_the_normal_group_for_bumps_on_treads() {
             top(&per_column)
         );
         assert_eq!(top(&per_column).0, "normal", "{per_column:?}");
-        assert!(group(&mass, "normal") > 0.2, "{mass:?}");
+        assert!(group(&mass, "normal") > 0.9, "{mass:?}");
         assert!(
             group(&mass, "height") < 0.05 && group(&mass, "box") < 0.05,
             "{mass:?}"
