@@ -32,7 +32,7 @@
 //!   0.429 at 32; source at most 0.5). Too many, and step 2 picks detail that continues the
 //!   context from the wrong place: the self-transfer of `detail_synthesis` (features that
 //!   locate a point) keeps Pearson r 0.83-0.97 up to K = 20 and falls to 0.28 / 0.18 at 24 / 32.
-//!   16 lies inside the range both pass (README "detail", the sweep of λ and `K`);
+//!   16 is the smallest `K` both pass (README "detail", the sweep of λ and `K`);
 //! - good-correspondence threshold: the 5 % quantile of target-to-sample feature distances
 //!   (a scale-free notion of "good"; see [`super::sweep`]);
 //! - seeds: 3;
