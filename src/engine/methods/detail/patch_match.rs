@@ -259,6 +259,31 @@ pub(super) fn source_patches(
         .collect()
 }
 
+/// `(Σ term, Σ weight)` over the items whose `term` is `Some((term, weight))`, terms
+/// non-negative; `None` once the running term sum exceeds `limit` (checked every `chunk`
+/// items, with a relative margin of 1e-9 so that rounding never abandons a tie). The matching
+/// steps' exact pruning: a score `Σ term / Σ weight` is at least the partial sum over the
+/// largest possible weight, which the callers fold into `limit`.
+fn pruned_sum<T>(
+    items: &[T],
+    chunk: usize,
+    limit: f64,
+    mut term: impl FnMut(&T) -> Option<(f64, f64)>,
+) -> Option<(f64, f64)> {
+    let limit = limit * (1.0 + 1e-9);
+    let (mut sum, mut weight) = (0.0, 0.0);
+    for part in items.chunks(chunk) {
+        for (t, w) in part.iter().filter_map(&mut term) {
+            sum += t;
+            weight += w;
+        }
+        if sum > limit {
+            return None;
+        }
+    }
+    Some((sum, weight))
+}
+
 /// How a pass chooses its patches.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Choice {
@@ -324,32 +349,23 @@ impl Level<'_> {
         p: &SourcePatch,
         bound: f64,
     ) -> (f64, (isize, isize)) {
-        const CHUNK: usize = 8;
         let r = self.r;
         let cells = sub.len() as f64;
         let mut best = (f64::INFINITY, (0, 0));
         for sh in self.shifts() {
-            let limit = best.0.min(bound) * cells * (1.0 + 1e-9);
-            let (mut sum, mut count) = (0.0, 0usize);
-            let mut abandoned = false;
-            for chunk in sub.chunks(CHUNK) {
-                for &(ix, iy, tv) in chunk {
-                    let sv = p.vertex[self.source_cell(ix, iy, sh)];
-                    if sv == NONE {
-                        continue;
-                    }
+            let limit = best.0.min(bound) * cells;
+            let summed = pruned_sum(sub, 8, limit, |&(ix, iy, tv)| {
+                let sv = p.vertex[self.source_cell(ix, iy, sh)];
+                (sv != NONE).then(|| {
                     let t = &self.target_features[tv as usize * r..(tv as usize + 1) * r];
                     let f = &self.source_features[sv as usize * r..(sv as usize + 1) * r];
-                    sum += feature_dist2(t, f);
-                    count += 1;
+                    (feature_dist2(t, f), 1.0)
+                })
+            });
+            if let Some((sum, count)) = summed {
+                if count > 0.0 && 2.0 * count >= cells && sum / count < best.0 {
+                    best = (sum / count, sh);
                 }
-                if sum > limit {
-                    abandoned = true;
-                    break;
-                }
-            }
-            if !abandoned && count > 0 && 2 * count >= sub.len() && sum / (count as f64) < best.0 {
-                best = (sum / count as f64, sh);
             }
         }
         best
@@ -402,31 +418,19 @@ impl Level<'_> {
         p: &SourcePatch,
         bound: &AtomicU64,
     ) -> (f64, (isize, isize)) {
-        const CHUNK: usize = 32;
         let mut best = (f64::INFINITY, (0, 0));
         for sh in self.shifts() {
-            let limit = best.0.min(f64::from_bits(bound.load(Ordering::Relaxed)));
-            let limit = limit * weight_total * (1.0 + 1e-9);
-            let (mut sum, mut wsum) = (0.0, 0.0);
-            let mut abandoned = false;
-            for chunk in context.chunks(CHUNK) {
-                for &(ix, iy, value, w) in chunk {
-                    let d = p.disp[self.source_cell(ix, iy, sh)];
-                    if d.is_nan() {
-                        continue;
-                    }
-                    sum += w * (value - d as f64).powi(2);
-                    wsum += w;
+            let limit = best.0.min(f64::from_bits(bound.load(Ordering::Relaxed))) * weight_total;
+            let summed = pruned_sum(context, 32, limit, |&(ix, iy, value, w)| {
+                let d = p.disp[self.source_cell(ix, iy, sh)];
+                (!d.is_nan()).then(|| (w * (value - d as f64).powi(2), w))
+            });
+            if let Some((sum, wsum)) = summed {
+                if wsum > 0.0 && sum / wsum < best.0 {
+                    best = (sum / wsum, sh);
+                    // Non-negative floats order as their bit patterns.
+                    bound.fetch_min(best.0.to_bits(), Ordering::Relaxed);
                 }
-                if sum > limit {
-                    abandoned = true;
-                    break;
-                }
-            }
-            if !abandoned && wsum > 0.0 && sum / wsum < best.0 {
-                best = (sum / wsum, sh);
-                // Non-negative floats order as their bit patterns.
-                bound.fetch_min(best.0.to_bits(), Ordering::Relaxed);
             }
         }
         best
