@@ -285,6 +285,33 @@ fn bad_input_is_an_error() {
     ));
 }
 
+#[test]
+fn a_vertex_used_only_by_a_zero_area_face_does_not_break_the_features() {
+    // Isotropic remeshing can leave such a vertex (found on a coarse level of Nefertiti with
+    // `feature_vertices` 5,000): it has no mass and an empty Laplacian row, so the smoothed
+    // normals' `M − tL` had a zero pivot ("matrix is not positive definite").
+    let mut s = icosphere(1.0, 8);
+    let [a, b, _] = s.faces[0];
+    let (pa, pb) = (s.positions[a as usize], s.positions[b as usize]);
+    s.positions.push([0, 1, 2].map(|k| 0.5 * (pa[k] + pb[k])));
+    let v = (s.positions.len() - 1) as u32;
+    s.faces.push([a, b, v]);
+    let g = geometric_features(&s, &GeometricParams::default(), &Control::new()).unwrap();
+    assert!(g.values.iter().all(|x| x.is_finite()));
+    // The other vertices keep their sphere values (outward smoothed normals).
+    let n = s.positions.len() - 1;
+    let outward = (0..n)
+        .filter(|&i| {
+            let p = s.positions[i];
+            let dot: f64 = (0..3)
+                .map(|k| g.values[i * DIM + 6 + k] * p[k] as f64)
+                .sum();
+            dot > 0.99
+        })
+        .count();
+    assert_eq!(outward, n);
+}
+
 /// Timing of both feature sets on a 20k-vertex shape:
 /// `cargo test --release --test engine detail_geometric::bench_ -- --ignored --nocapture`.
 #[test]

@@ -183,8 +183,7 @@ impl HeatGeodesics {
         let mean_edge = edge_sum / edge_count.max(1) as f64;
         let time = params.time_factor * mean_edge * mean_edge;
         // Vertices used only by zero-area faces get a tiny mass so the operators stay definite.
-        let floor = 1e-12 * total_area / n as f64;
-        let mass: Vec<f64> = lap.mass.iter().map(|&m| m.max(floor)).collect();
+        let mass = lap.definite_mass();
 
         let topo = topology(surface);
         let mut vertex_component = vec![u32::MAX; n];

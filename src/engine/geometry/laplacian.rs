@@ -123,6 +123,15 @@ impl Laplacian {
     pub fn pattern(&self) -> &Arc<SparsityPattern> {
         self.stiffness.pattern()
     }
+
+    /// The mass with every entry at least `1e-12 ×` the mean vertex area, so that `M − tL`
+    /// stays positive definite: a vertex used only by zero-area faces has `M_ii = 0` and an
+    /// empty row of `L`, which leaves a zero pivot (isotropic remeshing can leave such faces).
+    pub fn definite_mass(&self) -> Vec<f64> {
+        let total: f64 = self.mass.iter().sum();
+        let floor = 1e-12 * total / self.mass.len().max(1) as f64;
+        self.mass.iter().map(|&m| m.max(floor)).collect()
+    }
 }
 
 /// Per-face geometry in f64: corner cotangents (clamped) and corner areas of the requested kind.

@@ -100,13 +100,14 @@ pub fn smooth_base(detailed: &Surface, params: &BaseParams) -> Result<Surface, D
     let lp = LaplacianParams::default();
     for _ in 0..params.steps {
         let lap = cotan_laplacian(&out, &lp)?;
-        let a = lap.stiffness.scaled_plus_diagonal(-tau, 1.0, &lap.mass);
+        let mass = lap.definite_mass();
+        let a = lap.stiffness.scaled_plus_diagonal(-tau, 1.0, &mass);
         let factor = SymbolicCholesky::new(lap.pattern().clone())?.factor(&a)?;
         let mut rhs: Vec<Vec<f64>> = (0..3)
             .map(|k| {
                 out.positions
                     .iter()
-                    .zip(&lap.mass)
+                    .zip(&mass)
                     .map(|(p, m)| p[k] as f64 * m)
                     .collect()
             })

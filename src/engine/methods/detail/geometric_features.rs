@@ -373,11 +373,12 @@ fn smoothed_normals(surface: &Surface, sigma_edges: f64) -> Result<Vec<[f64; 3]>
         let steps = 4;
         let tau = sigma * sigma / (2.0 * steps as f64);
         let lap = cotan_laplacian(surface, &LaplacianParams::default())?;
-        let a = lap.stiffness.scaled_plus_diagonal(-tau, 1.0, &lap.mass);
+        let mass = lap.definite_mass();
+        let a = lap.stiffness.scaled_plus_diagonal(-tau, 1.0, &mass);
         let factor = SymbolicCholesky::new(lap.pattern().clone())?.factor(&a)?;
         for _ in 0..steps {
             for col in &mut cols {
-                col.iter_mut().zip(&lap.mass).for_each(|(x, m)| *x *= m);
+                col.iter_mut().zip(&mass).for_each(|(x, m)| *x *= m);
             }
             factor.solve_many(&mut cols)?;
         }
