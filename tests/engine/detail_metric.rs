@@ -5,8 +5,8 @@
 
 use faer::{Mat, Side};
 use retex::engine::methods::detail::metric::{
-    factor, learn_metric, metric_of_kind, top_eigenvector, transform, MetricError, MetricKind,
-    MetricParams, MetricProblem,
+    factor, factor_above, learn_metric, metric_of_kind, residue_floor, top_eigenvector, transform,
+    MetricError, MetricKind, MetricParams, MetricProblem,
 };
 use retex::engine::rng::SplitMix64;
 
@@ -293,6 +293,57 @@ fn factor_reproduces_m_and_transform_gives_m_distances() {
     assert!((e2 - m2).abs() < 1e-10 * m2.abs().max(1e-12));
     // A zero metric factors to an empty transform.
     assert_eq!(factor(&Mat::<f64>::zeros(4, 4)).unwrap().nrows(), 0);
+}
+
+#[test]
+fn the_residue_floor_drops_only_eigenvalues_within_the_solver_resolution() {
+    // A metric with known eigenvalues: three real ones and two at residue level.
+    // A Householder reflection as the eigenbasis.
+    let v = [0.3, -1.2, 0.7, 0.1, 0.9];
+    let vv: f64 = v.iter().map(|x| x * x).sum();
+    let q = Mat::<f64>::from_fn(5, 5, |i, j| {
+        f64::from(u8::from(i == j)) - 2.0 * v[i] * v[j] / vv
+    });
+    let mu = [1.0, 0.1, 1e-3, 2e-7, 1e-9];
+    let m = &q * Mat::<f64>::from_fn(5, 5, |i, j| if i == j { mu[i] } else { 0.0 }) * q.transpose();
+    assert_eq!(factor(&m).unwrap().nrows(), 5);
+    let a = factor_above(&m, 1e-5).unwrap();
+    assert_eq!(a.nrows(), 3);
+    let dropped = (&(a.transpose() * &a) - &m).norm_l2();
+    assert!(
+        (dropped - (2e-7f64.powi(2) + 1e-18).sqrt()).abs() < 1e-9,
+        "{dropped:e}"
+    );
+
+    // On learned metrics the floor sits above the residue and below every real eigenvalue: the
+    // factor without the residue changes the objective by less than the solver's tolerance.
+    for (seed, lambda) in [(62u64, 0.1), (63, 0.3), (64, 0.03)] {
+        let (g, t) = random_problem(seed, 300, 8, 2);
+        let p = MetricProblem::from_features(&g, 8, &t, 2).unwrap();
+        let params = MetricParams {
+            lambda,
+            ..Default::default()
+        };
+        let learned = learn_metric(&p, &params).unwrap();
+        let floor = residue_floor(&learned, &params);
+        let full = factor(&learned.m).unwrap();
+        let a = factor_above(&learned.m, floor).unwrap();
+        let kept = a.transpose() * &a;
+        let f_full = p.objective(&learned.m, lambda);
+        let f_kept = p.objective(&kept, lambda);
+        println!(
+            "seed {seed}: floor {floor:.2e} ({:.2e} of the top), rank {} -> {}, objective {f_full:.10} -> {f_kept:.10}",
+            floor / learned.m.norm_l2(),
+            full.nrows(),
+            a.nrows()
+        );
+        assert!(a.nrows() >= 1 && a.nrows() <= full.nrows());
+        assert!(
+            floor < 1e-4 * learned.m.norm_l2(),
+            "seed {seed}: floor {floor:e}"
+        );
+        assert!((f_kept - f_full).abs() < 1e-6 * f_full.abs(), "seed {seed}");
+    }
 }
 
 #[test]

@@ -37,8 +37,8 @@ use super::displacement::{displacement, smooth_base, BaseParams, DisplacementPar
 use super::geometric_features::{geometric_features_pair, GeometricParams, DIM, GROUPS};
 use super::hierarchy::{build_pair, mean_edge_length, HierarchyParams};
 use super::metric::{
-    factor, metric_of_kind, top_eigenvector, transform, MetricKind, MetricParams, MetricProblem,
-    ZScore,
+    factor_above, metric_of_kind, residue_floor, top_eigenvector, transform, MetricKind,
+    MetricParams, MetricProblem, ZScore,
 };
 use super::patches::{detail_features_at, PatchParams};
 use super::steerable::FEATURES;
@@ -156,8 +156,11 @@ pub struct MetricReport {
     pub kind: MetricKind,
     /// `M`, 60 × 60, row by row (feature order of [`GROUPS`]).
     pub m: Vec<Vec<f64>>,
-    /// Rank of the factor `A`.
+    /// Rank of the factor `A`: eigenvalues of `M` above `residue_floor`.
     pub rank: usize,
+    /// Eigenvalues at or below this are the solver's residue and left out of `A` (0 for the
+    /// identity; `metric::residue_floor`).
+    pub residue_floor: f64,
     /// Largest eigenvalue of `M`.
     pub top_eigenvalue: f64,
     /// Squared entries of the top eigenvector summed per feature group (they sum to 1).
@@ -308,7 +311,11 @@ fn learn(
     let b_max = problem.b.norm_max();
     let zero = params.metric_kind == MetricKind::Learned
         && (params.metric.lambda >= 2.0 * b_max || learned.m.norm_max() <= ZERO_METRIC * b_max);
-    let a = factor(&learned.m).map_err(step("metric", control))?;
+    let floor = match params.metric_kind {
+        MetricKind::Learned => residue_floor(&learned, &params.metric),
+        MetricKind::Identity => 0.0,
+    };
+    let a = factor_above(&learned.m, floor).map_err(step("metric", control))?;
     let (top_value, top) = top_eigenvector(&learned.m).map_err(step("metric", control))?;
     let report = MetricReport {
         kind: params.metric_kind,
@@ -316,6 +323,7 @@ fn learn(
             .map(|i| (0..DIM).map(|j| learned.m[(i, j)]).collect())
             .collect(),
         rank: a.nrows(),
+        residue_floor: floor,
         top_eigenvalue: top_value,
         top_eigenvector_by_group: group_mass(|j| top[j] * top[j]),
         diagonal_by_group: group_mass(|j| learned.m[(j, j)]),
