@@ -101,6 +101,46 @@ fn mass_sums_to_area_for_both_kinds() {
 }
 
 #[test]
+fn a_needle_with_a_bounded_cotangent_keeps_the_laplacian_semidefinite() {
+    // Angles about 1e-6 (its cotangent beyond the bound), 0.1 and π − 0.1: clamping the first
+    // cotangent alone made the element matrix indefinite.
+    let (a, b) = (1e-6f64, 0.1f64);
+    let c = std::f64::consts::PI - a - b;
+    // Side lengths by the law of sines; corner 0 at the origin, corner 1 on the x axis.
+    let (lb, lc) = (b.sin(), c.sin());
+    let positions = vec![
+        [0.0, 0.0, 0.0],
+        [lc as f32, 0.0, 0.0],
+        [(lb * a.cos()) as f32, (lb * a.sin()) as f32, 0.0],
+    ];
+    let s = Surface::from_triangles(positions, vec![[0, 1, 2]]);
+    for max_cotangent in [1e3, 1e5] {
+        let lap = cotan_laplacian(
+            &s,
+            &LaplacianParams {
+                max_cotangent,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let l = |i: usize, j: usize| lap.stiffness.get(i, j);
+        // −L is PSD iff every principal minor of the 3 × 3 is ≥ 0; its kernel holds constants,
+        // so the 2 × 2 minor of rows 1, 2 decides.
+        let minor = l(1, 1) * l(2, 2) - l(1, 2) * l(2, 1);
+        let scale = l(1, 1).abs().max(l(2, 2).abs()).powi(2);
+        assert!(
+            minor >= -1e-9 * scale,
+            "max_cotangent {max_cotangent}: minor {minor:e}"
+        );
+        assert!(lap
+            .stiffness
+            .values()
+            .iter()
+            .all(|v| v.abs() <= 2.0 * max_cotangent));
+    }
+}
+
+#[test]
 fn laplacian_is_finite_on_degenerate_and_sliver_triangles() {
     // A fan with a zero-area face (collinear), a needle sliver, and an obtuse triangle.
     let positions = vec![

@@ -14,7 +14,13 @@
 //!
 //! **Robustness.** Computed in f64. A face whose doubled area `|(b - a) × (c - a)|` is at most
 //! `f64::EPSILON · (longest edge)²` is treated as having zero area and contributes nothing to `L`
-//! or `M`. Cotangents are clamped to `±max_cotangent` so that slivers cannot create huge weights.
+//! or `M`. A face whose largest cotangent magnitude exceeds `max_cotangent` has its three
+//! cotangents scaled together down to that bound, so that slivers cannot create huge weights.
+//! Scaling, not clamping each one: a face's exact cotangents form a positive semi-definite
+//! element matrix (the P1 stiffness `∫∇φ_i·∇φ_j`), and a positive multiple of it stays so, while
+//! clamping only the needle's angle made the element indefinite (`c₁c₂ + c₂c₃ + c₃c₁ = 1` for
+//! exact cotangents, negative after clamping `c₁`). A remeshed koala level with one needle of
+//! angle below 1e-5 rad gave a `−L + σM` without a Cholesky factor that way.
 //! Obtuse triangles keep their (negative) cotangents, as the operator requires, and the mixed
 //! Voronoi mass handles them as in Meyer et al. (area/2 at the obtuse corner, area/4 at the
 //! others). Non-manifold edges simply sum all incident triangles.
@@ -95,7 +101,8 @@ pub enum MassKind {
 pub struct LaplacianParams {
     /// Mass matrix to build. Default: `mixed_voronoi`.
     pub mass: MassKind,
-    /// Cotangents are clamped to `[-max_cotangent, max_cotangent]` (dimensionless).
+    /// A face's cotangents are scaled together so that none exceeds `max_cotangent` in
+    /// magnitude (dimensionless).
     /// Default: 1e5 (angles below about 1e-5 rad are treated as 1e-5 rad). Range: [1, ∞].
     pub max_cotangent: f64,
 }
@@ -174,14 +181,21 @@ pub(crate) fn face_terms(
     let p = face_points(surface, face);
     let twice_area = length(cross(sub(p[1], p[0]), sub(p[2], p[0])));
     let area = 0.5 * twice_area;
-    let mut cot = [0.0; 3];
     let mut raw = [0.0; 3];
     for k in 0..3 {
         let u = sub(p[(k + 1) % 3], p[k]);
         let v = sub(p[(k + 2) % 3], p[k]);
         raw[k] = dot(u, v) / twice_area;
-        cot[k] = raw[k].clamp(-max_cot, max_cot);
     }
+    // The three scaled together (not clamped one by one): the face's element matrix stays
+    // positive semi-definite (module docs, "Robustness").
+    let largest = raw.iter().fold(0.0f64, |m, c| m.max(c.abs()));
+    let scale = if largest > max_cot {
+        max_cot / largest
+    } else {
+        1.0
+    };
+    let cot = raw.map(|c| c * scale);
     let corner_area = match kind {
         MassKind::Barycentric => [area / 3.0; 3],
         MassKind::MixedVoronoi => {
