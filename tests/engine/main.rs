@@ -33,6 +33,7 @@ mod detail_features;
 mod detail_method;
 mod detail_metric;
 mod detail_properties;
+mod detail_real_self;
 mod detail_refine;
 mod detail_remesh;
 mod detail_steerable;

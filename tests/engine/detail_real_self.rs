@@ -1,0 +1,91 @@
+//! The `detail` method (Berkiten et al. 2017, §3.3.1) on a real scan with a known answer: the
+//! koala scan's sculpted detail (fur, toes, ear ruffles, eyes) synthesised onto the koala's own
+//! smooth base. Source and target levels are then the same remeshed surfaces, so the source's
+//! displacement at each target vertex is the answer, and the synthesis with the learned metric
+//! must reproduce it far better than random patches and better than equal weights (the paper's
+//! §5 baselines: "No Metric Learning" and no matching at all).
+
+use retex::engine::control::Control;
+use retex::engine::methods::detail::displacement::smooth_base;
+use retex::engine::methods::detail::metric::MetricKind;
+use retex::engine::methods::detail::params::DetailParams;
+use retex::engine::methods::detail::pipeline::{transfer_detail, DetailTransfer, PipelineParams};
+use retex::engine::methods::detail::synthesis::Choice;
+
+use crate::common_geometry::read_obj;
+
+fn pearson(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len() as f64;
+    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
+    let (mut ab, mut aa, mut bb) = (0.0, 0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        ab += (x - ma) * (y - mb);
+        aa += (x - ma) * (x - ma);
+        bb += (y - mb) * (y - mb);
+    }
+    ab / (aa * bb).sqrt().max(1e-300)
+}
+
+fn std(a: &[f64]) -> f64 {
+    let n = a.len() as f64;
+    let m = a.iter().sum::<f64>() / n;
+    (a.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / n).sqrt()
+}
+
+/// (Pearson r against the answer, synthesised std / the answer's std).
+fn against_the_answer(label: &str, out: &DetailTransfer) -> (f64, f64) {
+    let (s, t) = (&out.source_surface, &out.surface);
+    assert_eq!(
+        s.positions, t.positions,
+        "{label}: the target levels are not the source's"
+    );
+    let r = pearson(&out.displacement, &out.source_displacement);
+    let energy = std(&out.displacement) / std(&out.source_displacement);
+    println!(
+        "{label}: {} finest vertices, r {r:.3}, std {:.5} (answer {:.5}, ratio {energy:.3}), \
+         metric rank {}, {:.1} s synthesis",
+        t.vertex_count(),
+        std(&out.displacement),
+        std(&out.source_displacement),
+        out.report.metric.rank,
+        out.report.seconds.synthesis,
+    );
+    (r, energy)
+}
+
+#[test]
+#[ignore = "needs ../shared/assets; about a minute"]
+fn the_koala_scans_detail_onto_its_own_base_reproduces_it() {
+    let koala = read_obj(&crate::common::shared_asset(
+        "perf_koala_odedstein/koala.obj",
+    ));
+    let d = koala.diagonal() as f64;
+    let params = DetailParams::default().pipeline(d, d);
+    let base = smooth_base(&koala, &params.base).unwrap();
+    let control = Control::new();
+    let run =
+        |p: &PipelineParams| transfer_detail(&koala, Some(&base), &base, p, &control).unwrap();
+    let learned = against_the_answer("learned", &run(&params));
+    let mut identity = params.clone();
+    identity.metric_kind = MetricKind::Identity;
+    let identity = against_the_answer("identity", &run(&identity));
+    let mut random = params.clone();
+    random.synthesis.choice = Choice::Random(7);
+    let random = against_the_answer("random patches", &run(&random));
+    // Measured (r, std ratio): learned 0.643, 0.62; identity 0.531, 0.60; random patches 0.035,
+    // 0.41 (one case: the only real scan with a smooth copy of itself among the shared assets).
+    assert!(learned.0 > 0.5, "learned r {learned:?}");
+    assert!(
+        learned.0 > identity.0,
+        "learned {learned:?} vs identity {identity:?}"
+    );
+    assert!(random.0 < 0.2, "random patches {random:?}");
+    assert!(
+        learned.0 > random.0 + 0.4,
+        "learned {learned:?} vs random {random:?}"
+    );
+    assert!(
+        (0.4..1.3).contains(&learned.1),
+        "learned energy {learned:?}"
+    );
+}
