@@ -3,7 +3,8 @@
 //! smooth base. Source and target levels are then the same remeshed surfaces, so the source's
 //! displacement at each target vertex is the answer, and the synthesis with the learned metric
 //! must reproduce it far better than random patches and better than equal weights (the paper's
-//! §5 baselines: "No Metric Learning" and no matching at all).
+//! §5 baselines: "No Metric Learning" and no matching at all). This holds on the koala, not on
+//! the skull scan (see the test's comment).
 
 use retex::engine::control::Control;
 use retex::engine::methods::detail::displacement::smooth_base;
@@ -53,18 +54,14 @@ fn against_the_answer(label: &str, out: &DetailTransfer) -> (f64, f64) {
     (r, energy)
 }
 
-#[test]
-#[ignore = "needs ../shared/assets; about a minute"]
-fn the_koala_scans_detail_onto_its_own_base_reproduces_it() {
-    let koala = read_obj(&crate::common::shared_asset(
-        "perf_koala_odedstein/koala.obj",
-    ));
-    let d = koala.diagonal() as f64;
+/// (learned, identity, random patches) of the scan at `path` onto its own derived base.
+fn onto_its_own_base(path: &str) -> [(f64, f64); 3] {
+    let scan = read_obj(&crate::common::shared_asset(path));
+    let d = scan.diagonal() as f64;
     let params = DetailParams::default().pipeline(d, d);
-    let base = smooth_base(&koala, &params.base).unwrap();
+    let base = smooth_base(&scan, &params.base).unwrap();
     let control = Control::new();
-    let run =
-        |p: &PipelineParams| transfer_detail(&koala, Some(&base), &base, p, &control).unwrap();
+    let run = |p: &PipelineParams| transfer_detail(&scan, Some(&base), &base, p, &control).unwrap();
     let learned = against_the_answer("learned", &run(&params));
     let mut identity = params.clone();
     identity.metric_kind = MetricKind::Identity;
@@ -72,8 +69,17 @@ fn the_koala_scans_detail_onto_its_own_base_reproduces_it() {
     let mut random = params.clone();
     random.synthesis.choice = Choice::Random(7);
     let random = against_the_answer("random patches", &run(&random));
+    [learned, identity, random]
+}
+
+#[test]
+#[ignore = "needs ../shared/assets; about 1.5 minutes"]
+fn the_koala_scans_detail_onto_its_own_base_reproduces_it() {
+    let [learned, identity, random] = onto_its_own_base("perf_koala_odedstein/koala.obj");
     // Measured (r, std ratio): learned 0.643, 0.62; identity 0.531, 0.60; random patches 0.035,
-    // 0.41 (one case: the only real scan with a smooth copy of itself among the shared assets).
+    // 0.41. Not a general property: on the skull scan (the other shared scan with a derived
+    // base) learned r is 0.048, identity 0.134, random −0.062 (README "detail"), so the skull
+    // is not a test.
     assert!(learned.0 > 0.5, "learned r {learned:?}");
     assert!(
         learned.0 > identity.0,
