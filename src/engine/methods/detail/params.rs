@@ -82,6 +82,13 @@ pub struct DetailParams {
     /// Source patches sampled per level. Default 1024.
     #[schemars(range(min = 16, max = 65_536))]
     pub source_samples: usize,
+    /// Largest reach of the candidates' wider refinement (not in the paper), in edges: step 1's
+    /// candidates are re-aligned by feature distance over every shift up to the source samples'
+    /// covering radius, at most this. 0 turns it off. Default 0: it reproduces a scan's own
+    /// detail better (README "detail", "The candidates' reach") but drifts the stretch case's
+    /// rings.
+    #[schemars(range(min = 0, max = 16))]
+    pub max_reach: usize,
     /// Scale the source (and its base) about its bounding-box centre so that its bounding-box
     /// diagonal equals the target's before anything else: the hierarchy shares absolute edge
     /// lengths and the detail keeps its world size, which only means something when both models
@@ -118,6 +125,7 @@ impl Default for DetailParams {
             patch_size: synthesis.initial_patch_size,
             candidates: synthesis.candidates,
             source_samples: synthesis.source_samples,
+            max_reach: synthesis.max_reach,
             match_scale: true,
             refine: true,
             refine_max_translation: RefineParams::default().max_translation,
@@ -178,6 +186,7 @@ impl DetailParams {
                 initial_patch_size: self.patch_size,
                 candidates: self.candidates,
                 source_samples: self.source_samples,
+                max_reach: self.max_reach,
                 ..SynthesisParams::default()
             },
             ..d

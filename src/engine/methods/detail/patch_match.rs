@@ -17,7 +17,11 @@
 //! spaced cells; features vary slowly, so a sub-grid keeps the cost at `O(S · (2s+1)² · m² · r)`
 //! per patch) against the source cells under it; a shift covering fewer than half of the
 //! target's valid sub-grid cells is rejected. The `K` best (distance, ties by sample index)
-//! are the candidates, parallel over samples. Step 2 (detail): for each candidate and each shift,
+//! are the candidates, parallel over samples. With a reach above `s` (the candidates' wider
+//! refinement, [`super::synthesis`], not in the paper), each candidate is then re-aligned by the
+//! same feature distance over every shift within the reach (source patches carry that margin:
+//! side `n + 2·reach`), and the candidates are ranked by the refined distance. Step 2 (detail):
+//! for each candidate and each shift (within `s` of the refined alignment when there is one),
 //! the mean squared difference between the target's shown displacement and the source patch over
 //! all valid cells, weighted by the target's matching confidence
 //! ([`super::blend::Blend::context_weight`]: the current pass's `w_disp`, capped at 1, and the
@@ -284,6 +288,9 @@ fn pruned_sum<T>(
     Some((sum, weight))
 }
 
+/// A step 1 candidate: (feature distance, patch, step 1's shift, the refined shift).
+type Candidate = (f64, usize, (isize, isize), (isize, isize));
+
 /// How a pass chooses its patches.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Choice {
@@ -303,6 +310,7 @@ pub(super) struct Level<'a> {
     pub n: usize,
     pub step: f64,
     pub shift: usize,
+    pub reach: usize,
     pub candidates: usize,
     pub feature_grid: usize,
     pub choice: Choice,
@@ -322,18 +330,26 @@ pub struct PassStats {
 }
 
 impl Level<'_> {
-    fn side(&self) -> usize {
-        self.n + 2 * self.shift
+    /// Side of a source patch: the target's `n` plus the reach on both sides.
+    pub(super) fn side(&self) -> usize {
+        self.n + 2 * self.reach.max(self.shift)
     }
 
-    fn shifts(&self) -> impl Iterator<Item = (isize, isize)> + Clone {
-        let s = self.shift as isize;
-        (-s..=s).flat_map(move |dy| (-s..=s).map(move |dx| (dx, dy)))
+    /// The shifts within `range` of `centre` that stay inside the source patch.
+    fn shifts_around(
+        &self,
+        centre: (isize, isize),
+        range: usize,
+    ) -> impl Iterator<Item = (isize, isize)> + Clone {
+        let (r, m) = (range as isize, self.reach.max(self.shift) as isize);
+        let (x0, x1) = ((centre.0 - r).max(-m), (centre.0 + r).min(m));
+        let (y0, y1) = ((centre.1 - r).max(-m), (centre.1 + r).min(m));
+        (y0..=y1).flat_map(move |dy| (x0..=x1).map(move |dx| (dx, dy)))
     }
 
     /// Source cell under target cell `(ix, iy)` shifted by `(dx, dy)`.
     fn source_cell(&self, ix: usize, iy: usize, (dx, dy): (isize, isize)) -> usize {
-        let s = self.shift as isize;
+        let s = self.reach.max(self.shift) as isize;
         let (x, y) = (ix as isize + s + dx, iy as isize + s + dy);
         y as usize * self.side() + x as usize
     }
@@ -348,11 +364,12 @@ impl Level<'_> {
         sub: &[(usize, usize, u32)],
         p: &SourcePatch,
         bound: f64,
+        range: usize,
     ) -> (f64, (isize, isize)) {
         let r = self.r;
         let cells = sub.len() as f64;
         let mut best = (f64::INFINITY, (0, 0));
-        for sh in self.shifts() {
+        for sh in self.shifts_around((0, 0), range) {
             let limit = best.0.min(bound) * cells;
             let summed = pruned_sum(sub, 8, limit, |&(ix, iy, tv)| {
                 let sv = p.vertex[self.source_cell(ix, iy, sh)];
@@ -388,7 +405,7 @@ impl Level<'_> {
                 .enumerate()
                 .filter(|(i, _)| (i % STRIDE == 0) == first)
                 .map(|(i, p)| {
-                    let (d, sh) = self.feature_match(sub, p, bound);
+                    let (d, sh) = self.feature_match(sub, p, bound, self.shift);
                     (d, i, sh)
                 })
                 .filter(|c| c.0.is_finite())
@@ -416,10 +433,11 @@ impl Level<'_> {
         context: &[(usize, usize, f64, f64)],
         weight_total: f64,
         p: &SourcePatch,
+        centre: (isize, isize),
         bound: &AtomicU64,
     ) -> (f64, (isize, isize)) {
-        let mut best = (f64::INFINITY, (0, 0));
-        for sh in self.shifts() {
+        let mut best = (f64::INFINITY, centre);
+        for sh in self.shifts_around(centre, self.shift) {
             let limit = best.0.min(f64::from_bits(bound.load(Ordering::Relaxed))) * weight_total;
             let summed = pruned_sum(context, 32, limit, |&(ix, iy, value, w)| {
                 let d = p.disp[self.source_cell(ix, iy, sh)];
@@ -469,6 +487,23 @@ impl Level<'_> {
             ranked.select_nth_unstable_by(k - 1, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
             ranked.truncate(k);
         }
+        // (feature distance, patch, step 1's shift, the refined shift), best first.
+        let mut ranked: Vec<Candidate> = if self.reach > self.shift {
+            // The candidates' wider refinement (see the module doc): a full search of the
+            // shifts within the reach, which contains step 1's own shifts.
+            ranked
+                .par_iter()
+                .map(|&(d1, i, sh)| {
+                    let (d, refined) = self.feature_match(&sub, &self.patches[i], d1, self.reach);
+                    match d <= d1 {
+                        true => (d, i, sh, refined),
+                        false => (d1, i, sh, sh),
+                    }
+                })
+                .collect()
+        } else {
+            ranked.iter().map(|&(d, i, sh)| (d, i, sh, sh)).collect()
+        };
         ranked.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         let context: Vec<(usize, usize, f64, f64)> = (0..n * n)
             .filter_map(|c| {
@@ -483,13 +518,18 @@ impl Level<'_> {
             .collect();
         if context.is_empty() {
             stats.without_context += 1;
-            return Some((ranked[0].1, ranked[0].2));
+            return Some((ranked[0].1, ranked[0].3));
         }
         let weight_total: f64 = context.iter().map(|c| c.3).sum();
         let bound = AtomicU64::new(f64::INFINITY.to_bits());
         let scored: Vec<(f64, (isize, isize))> = ranked
             .par_iter()
-            .map(|c| self.detail_match(&context, weight_total, &self.patches[c.1], &bound))
+            .map(|c| {
+                let p = &self.patches[c.1];
+                // Around the refined alignment; without the refinement, the shift range itself.
+                let centre = if self.reach > self.shift { c.3 } else { (0, 0) };
+                self.detail_match(&context, weight_total, p, centre, &bound)
+            })
             .collect();
         let best = (0..k).fold(0, |b, i| if scored[i].0 < scored[b].0 { i } else { b });
         if best != 0 {

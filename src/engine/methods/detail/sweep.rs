@@ -28,9 +28,15 @@ use crate::engine::mesh::Surface;
 /// `count` vertices of `surface` by Euclidean farthest-point sampling from vertex 0 (all
 /// vertices when `count ≥` their number), in selection order.
 pub fn farthest_point_samples(surface: &Surface, count: usize) -> Vec<usize> {
+    farthest_point_cover(surface, count).0
+}
+
+/// [`farthest_point_samples`] and their covering radius: the largest Euclidean distance from a
+/// vertex of `surface` to its nearest sample (0 when every vertex is a sample).
+pub fn farthest_point_cover(surface: &Surface, count: usize) -> (Vec<usize>, f64) {
     let nv = surface.vertex_count();
     if count >= nv {
-        return (0..nv).collect();
+        return ((0..nv).collect(), 0.0);
     }
     let p = |v: usize| surface.positions[v].map(|x| x as f64);
     let mut nearest = vec![f64::INFINITY; nv];
@@ -49,7 +55,7 @@ pub fn farthest_point_samples(surface: &Surface, count: usize) -> Vec<usize> {
             break;
         }
     }
-    out
+    (out, nearest.get(next).map_or(0.0, |d| d.sqrt()))
 }
 
 /// Squared Euclidean distance of two `r`-vectors.

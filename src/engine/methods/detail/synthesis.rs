@@ -41,6 +41,14 @@
 //!   range closes;
 //! - shift range `s = 1` grid step (`(2s+1)² = 9` shifts per candidate): the samples' spacing
 //!   over the shift range, so together they reach about every alignment;
+//! - the candidates' wider refinement (not in the paper; off by default, `max_reach`): on a
+//!   level whose samples lie farther apart than the shift range closes (1024 samples on a
+//!   38k-vertex level lie about 6 edges apart), step 1's `K` candidates are re-aligned by
+//!   feature distance over every shift up to the samples' covering radius (rounded up to grid
+//!   steps, at most `max_reach`), and step 2 searches its shift range around that alignment
+//!   ([`super::patch_match`]). It reproduces a known answer far better (README "detail",
+//!   "The candidates' reach") but drifts the stretch case's rings (stretched part's wavelength
+//!   0.500 → 0.600, the test's bound), so it is an option;
 //! - feature sub-grid `m = 7`; matching confidence 0.5 for an up-sampled value, 1 for the
 //!   forward pass's result in the reverse pass.
 //!
@@ -54,7 +62,7 @@ use serde::Serialize;
 
 use super::blend::Blend;
 use super::patch_match::{recorded_point, source_patches, Charts, Level, Record};
-use super::sweep::{farthest_point_samples, good_counts, good_threshold, sweep_order};
+use super::sweep::{farthest_point_cover, good_counts, good_threshold, sweep_order};
 use crate::engine::control::{Cancelled, Control};
 use crate::engine::geometry::expmap::mean_edge_length;
 use crate::engine::mesh::Surface;
@@ -77,6 +85,10 @@ pub struct SynthesisParams {
     pub source_samples: usize,
     /// Translational refinement range, grid steps. Default 1. Range 0..=4.
     pub shift: usize,
+    /// Largest reach of the candidates' wider refinement, grid steps (the reach itself is the
+    /// source samples' covering radius, see the module doc); 0 turns it off. Default 0 (off).
+    /// Range 0..=16.
+    pub max_reach: usize,
     /// Side of the feature sub-grid of step 1. Default 7. Range ≥ 1.
     pub feature_grid: usize,
     /// Matching confidence of an up-sampled value. Default 0.5.
@@ -96,6 +108,7 @@ impl Default for SynthesisParams {
             seeds: 3,
             source_samples: 1024,
             shift: 1,
+            max_reach: 0,
             feature_grid: 7,
             upsampled_confidence: 0.5,
             previous_pass_confidence: 1.0,
@@ -178,6 +191,9 @@ pub struct LevelStats {
     pub grid_step: f64,
     /// Source patches sampled.
     pub source_samples: usize,
+    /// Reach of the candidates' wider refinement (grid steps; the shift range when it is not
+    /// larger).
+    pub reach: usize,
     /// Good-correspondence threshold `τ` (squared feature distance).
     pub threshold: f64,
     /// Seeds of the sweep order.
@@ -223,6 +239,7 @@ fn validate(
         && p.seeds >= 1
         && p.source_samples >= 1
         && p.shift <= 4
+        && p.max_reach <= 16
         && p.feature_grid >= 1
         && (0.0..=1.0).contains(&p.upsampled_confidence)
         && (0.0..=1.0).contains(&p.previous_pass_confidence);
@@ -340,7 +357,7 @@ pub fn synthesize(
         };
         let t_up = lap();
         let step = 0.5 * (mean_edge_length(s.surface) + mean_edge_length(t.surface)) as f64;
-        let samples = farthest_point_samples(s.surface, params.source_samples);
+        let (samples, cover) = farthest_point_cover(s.surface, params.source_samples);
         let source_charts = Charts::new(s.surface);
         let target_charts = Charts::new(t.surface);
         let nt = t.surface.vertex_count();
@@ -348,7 +365,8 @@ pub fn synthesize(
             &format!("detail synthesis level {}/{count}", l + 1),
             (samples.len() + 2 * nt) as u64,
         )?;
-        let side = n + 2 * params.shift;
+        let reach = candidate_reach(cover, step, params);
+        let side = n + 2 * reach.max(params.shift);
         let patches = source_patches(&source_charts, &disp, &samples, side, step, &stage)?;
         let t_patches = lap();
         let threshold = good_threshold(t.features, s.features, &samples, r, params.good_quantile);
@@ -364,6 +382,7 @@ pub fn synthesize(
             n,
             step,
             shift: params.shift,
+            reach,
             candidates: params.candidates,
             feature_grid: params.feature_grid,
             choice: params.choice,
@@ -396,6 +415,7 @@ pub fn synthesize(
             patch_size: n,
             grid_step: step,
             source_samples: samples.len(),
+            reach,
             threshold,
             seeds,
             passes: [forward, reverse],
@@ -405,6 +425,19 @@ pub fn synthesize(
         n = 2 * n + 1;
     }
     Ok(out)
+}
+
+/// The reach of the candidates' wider refinement on a level (see the module doc): the source
+/// samples' covering radius `cover` (world units) in grid steps `step`, rounded up, at most
+/// `max_reach` and at least the shift range (which is also the reach when `max_reach` is 0).
+pub(super) fn candidate_reach(cover: f64, step: f64, params: &SynthesisParams) -> usize {
+    let radius = cover / step.max(f64::MIN_POSITIVE);
+    let reach = if radius.is_finite() {
+        radius.ceil() as usize
+    } else {
+        0
+    };
+    reach.min(params.max_reach).max(params.shift)
 }
 
 /// The record array of a pass, `None` when it is not recorded (empty).
