@@ -9,4 +9,4 @@ pub(crate) mod metric_features;
 #[path = "detail_patches.rs"]
 mod patches;
 #[path = "detail_synthesis.rs"]
-mod synthesis;
+pub(crate) mod synthesis;

@@ -14,24 +14,8 @@ use retex::engine::methods::detail::pipeline::{transfer_detail, DetailTransfer, 
 use retex::engine::methods::detail::synthesis::Choice;
 
 use crate::common_geometry::read_obj;
-
-fn pearson(a: &[f64], b: &[f64]) -> f64 {
-    let n = a.len() as f64;
-    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
-    let (mut ab, mut aa, mut bb) = (0.0, 0.0, 0.0);
-    for (x, y) in a.iter().zip(b) {
-        ab += (x - ma) * (y - mb);
-        aa += (x - ma) * (x - ma);
-        bb += (y - mb) * (y - mb);
-    }
-    ab / (aa * bb).sqrt().max(1e-300)
-}
-
-fn std(a: &[f64]) -> f64 {
-    let n = a.len() as f64;
-    let m = a.iter().sum::<f64>() / n;
-    (a.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / n).sqrt()
-}
+use crate::detail_features::synthesis::pearson;
+use crate::detail_method::std;
 
 /// (Pearson r against the answer, synthesised std / the answer's std).
 fn against_the_answer(label: &str, out: &DetailTransfer) -> (f64, f64) {

@@ -22,8 +22,10 @@ use retex::engine::methods::detail::synthesis::{
 };
 
 use super::metric_features::tiers;
+use crate::detail_method::std;
 
-fn pearson(a: &[f64], b: &[f64]) -> f64 {
+/// Pearson correlation of two equally long series (0 for a constant one).
+pub(crate) fn pearson(a: &[f64], b: &[f64]) -> f64 {
     let n = a.len() as f64;
     let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
     let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
@@ -33,12 +35,6 @@ fn pearson(a: &[f64], b: &[f64]) -> f64 {
         sbb += (y - mb).powi(2);
     }
     sab / (saa * sbb).sqrt().max(1e-300)
-}
-
-fn std(a: &[f64]) -> f64 {
-    let n = a.len().max(1) as f64;
-    let m = a.iter().sum::<f64>() / n;
-    (a.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n).sqrt()
 }
 
 fn print_levels(label: &str, s: &Synthesis) {

@@ -198,8 +198,7 @@ pub fn pencil_spectrum(
     if area.is_nan() || area <= 0.0 {
         return Err(GeometryError::Degenerate("zero total area".into()));
     }
-    let floor = 1e-12 * area / n as f64;
-    let mass: Vec<f64> = lap.mass.iter().map(|&m| m.max(floor)).collect();
+    let mass = lap.definite_mass();
     let solver = match params.solver {
         SpectrumSolver::Auto if n <= params.dense_max_vertices => SpectrumSolver::Dense,
         SpectrumSolver::Auto => SpectrumSolver::Iterative,
