@@ -288,9 +288,6 @@ fn pruned_sum<T>(
     Some((sum, weight))
 }
 
-/// A step 1 candidate: (feature distance, patch, step 1's shift, the refined shift).
-type Candidate = (f64, usize, (isize, isize), (isize, isize));
-
 /// How a pass chooses its patches.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Choice {
@@ -310,6 +307,7 @@ pub(super) struct Level<'a> {
     pub n: usize,
     pub step: f64,
     pub shift: usize,
+    /// At least `shift` ([`super::synthesis`]'s `candidate_reach`).
     pub reach: usize,
     pub candidates: usize,
     pub feature_grid: usize,
@@ -332,7 +330,7 @@ pub struct PassStats {
 impl Level<'_> {
     /// Side of a source patch: the target's `n` plus the reach on both sides.
     pub(super) fn side(&self) -> usize {
-        self.n + 2 * self.reach.max(self.shift)
+        self.n + 2 * self.reach
     }
 
     /// The shifts within `range` of `centre` that stay inside the source patch.
@@ -341,7 +339,7 @@ impl Level<'_> {
         centre: (isize, isize),
         range: usize,
     ) -> impl Iterator<Item = (isize, isize)> + Clone {
-        let (r, m) = (range as isize, self.reach.max(self.shift) as isize);
+        let (r, m) = (range as isize, self.reach as isize);
         let (x0, x1) = ((centre.0 - r).max(-m), (centre.0 + r).min(m));
         let (y0, y1) = ((centre.1 - r).max(-m), (centre.1 + r).min(m));
         (y0..=y1).flat_map(move |dy| (x0..=x1).map(move |dx| (dx, dy)))
@@ -349,7 +347,7 @@ impl Level<'_> {
 
     /// Source cell under target cell `(ix, iy)` shifted by `(dx, dy)`.
     fn source_cell(&self, ix: usize, iy: usize, (dx, dy): (isize, isize)) -> usize {
-        let s = self.reach.max(self.shift) as isize;
+        let s = self.reach as isize;
         let (x, y) = (ix as isize + s + dx, iy as isize + s + dy);
         y as usize * self.side() + x as usize
     }
@@ -487,23 +485,21 @@ impl Level<'_> {
             ranked.select_nth_unstable_by(k - 1, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
             ranked.truncate(k);
         }
-        // (feature distance, patch, step 1's shift, the refined shift), best first.
-        let mut ranked: Vec<Candidate> = if self.reach > self.shift {
+        if self.reach > self.shift {
             // The candidates' wider refinement (see the module doc): a full search of the
             // shifts within the reach, which contains step 1's own shifts.
-            ranked
+            ranked = ranked
                 .par_iter()
                 .map(|&(d1, i, sh)| {
                     let (d, refined) = self.feature_match(&sub, &self.patches[i], d1, self.reach);
-                    match d <= d1 {
-                        true => (d, i, sh, refined),
-                        false => (d1, i, sh, sh),
+                    if d <= d1 {
+                        (d, i, refined)
+                    } else {
+                        (d1, i, sh)
                     }
                 })
-                .collect()
-        } else {
-            ranked.iter().map(|&(d, i, sh)| (d, i, sh, sh)).collect()
-        };
+                .collect();
+        }
         ranked.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         let context: Vec<(usize, usize, f64, f64)> = (0..n * n)
             .filter_map(|c| {
@@ -518,7 +514,7 @@ impl Level<'_> {
             .collect();
         if context.is_empty() {
             stats.without_context += 1;
-            return Some((ranked[0].1, ranked[0].3));
+            return Some((ranked[0].1, ranked[0].2));
         }
         let weight_total: f64 = context.iter().map(|c| c.3).sum();
         let bound = AtomicU64::new(f64::INFINITY.to_bits());
@@ -527,7 +523,7 @@ impl Level<'_> {
             .map(|c| {
                 let p = &self.patches[c.1];
                 // Around the refined alignment; without the refinement, the shift range itself.
-                let centre = if self.reach > self.shift { c.3 } else { (0, 0) };
+                let centre = if self.reach > self.shift { c.2 } else { (0, 0) };
                 self.detail_match(&context, weight_total, p, centre, &bound)
             })
             .collect();

@@ -366,7 +366,7 @@ pub fn synthesize(
             (samples.len() + 2 * nt) as u64,
         )?;
         let reach = candidate_reach(cover, step, params);
-        let side = n + 2 * reach.max(params.shift);
+        let side = n + 2 * reach;
         let patches = source_patches(&source_charts, &disp, &samples, side, step, &stage)?;
         let t_patches = lap();
         let threshold = good_threshold(t.features, s.features, &samples, r, params.good_quantile);
