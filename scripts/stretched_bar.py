@@ -4,7 +4,9 @@
 and white ring stripes (period 0.5) as COLOR_0, and the same bar with x in [2, 4] stretched to
 [2, 6]. Writes SRC.glb and TGT.glb. With --round, the capsule pair of `retex bench --method
 meshmatch` instead (circular section of radius 0.5, 256 around, hemispherical caps of 8 rings:
-the vertices and triangles of `primitives::capsule`, 69,378 vertices). Usage: stretched_bar.py [--round] SRC.glb TGT.glb"""
+the vertices and triangles of `primitives::capsule`, 69,378 vertices); --round32 the same with
+32 cap rings and each quad split along its other diagonal (81,666 vertices), the third file of
+the README's HKS-units sweep. Usage: stretched_bar.py [--round | --round32] SRC.glb TGT.glb"""
 import numpy as np, json, struct, sys
 def stripe(x):
     s=np.sin(2*np.pi*x/0.5); return 0.05+0.85*(0.5+0.5*np.tanh(4*s))
@@ -18,7 +20,7 @@ def square_loop(n_side):
             y,z={0:(0.5,t),1:(-t,0.5),2:(-0.5,-t),3:(t,-0.5)}[side]
             pts.append((y,z))
     return np.array(pts)
-def round_capsule(fx, around=256, rings=257, cap_rings=8):
+def round_capsule(fx, around=256, rings=257, cap_rings=8, other_split=False):
     # The vertices and triangles of `primitives::capsule`, in its order: left pole, rings from
     # left to right, right pole.
     ang=2*np.pi*np.arange(around)/around
@@ -36,7 +38,7 @@ def round_capsule(fx, around=256, rings=257, cap_rings=8):
     for i in range(n-1):
         for j in range(m):
             a,b,c,d=at(i,j),at(i,j+1),at(i+1,j),at(i+1,j+1)
-            F+=[(a,b,d),(a,d,c)]
+            F+=[(a,b,c),(b,d,c)] if other_split else [(a,b,d),(a,d,c)]
     F+=[(last,at(n-1,j),at(n-1,j+1)) for j in range(m)]
     return np.array(P,np.float32),np.array(F,np.uint32)
 def box(fx, n_side=64, rings=257):
@@ -73,8 +75,10 @@ def glb(P,F,C,path):
     j=json.dumps(js).encode(); j+=b' '*((-len(j))%4); binb=b''.join(blobs)
     out=struct.pack('<III',0x46546C67,2,12+8+len(j)+8+len(binb))+struct.pack('<II',len(j),0x4E4F534A)+j+struct.pack('<II',len(binb),0x004E4942)+binb
     open(path,'wb').write(out)
-args=[a for a in sys.argv[1:] if a!='--round']
-make=round_capsule if '--round' in sys.argv else box
+args=[a for a in sys.argv[1:] if a not in ('--round','--round32')]
+make=box
+if '--round' in sys.argv: make=round_capsule
+if '--round32' in sys.argv: make=lambda fx: round_capsule(fx, cap_rings=32, other_split=True)
 P,F=make(lambda x:x); g=stripe(P[:,0]).astype(np.float32)
 C=np.stack([g,g,g,np.ones_like(g)],1).astype(np.float32)
 glb(P,F,C,args[0])
