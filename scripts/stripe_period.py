@@ -3,7 +3,9 @@
 meshmatch` (README, issue 14 item 2): grey crossings counted along 16 lines of the cylinder
 (x axis, radius 0.5) in the unstretched window x in [0.2, 1.8] and the stretched one [2.4, 5.6],
 the median line reported as a multiple of the source period 0.5 (per line: twice the distance
-between the first and last interpolated crossing over the crossings between them). Needs COLOR_0 in the output
+between the first and last interpolated crossing over the crossings between them), and `rings`:
+the fraction of crossings that the next line (1/16 turn on) crosses within a quarter period too
+(about 1 for rings; a hook, U-turn or swirl lowers it, which the period cannot see). Needs COLOR_0 in the output
 (`"output": {"vertex_colors": true}`). Usage: stripe_period.py OUT.glb"""
 import json,struct,sys,numpy as np
 def load(path):
@@ -32,6 +34,11 @@ def crossings(x,g,lo,hi):
     if len(i)<2: return 2*(hi-lo)
     xc=xs[i]+(t-gs[i])/(gs[i+1]-gs[i])*(xs[i+1]-xs[i])
     return 2*(xc[-1]-xc[0])/(len(xc)-1)
+def crossing_points(x,g,lo,hi,t):
+    """Interpolated positions of the grey level t crossed along one line in [lo, hi]."""
+    m=(x>=lo)&(x<=hi); xs=x[m]; gs=g[m]; o=np.argsort(xs); xs,gs=xs[o],gs[o]
+    s=gs>t; i=np.nonzero(s[1:]!=s[:-1])[0]
+    return xs[i]+(t-gs[i])/(gs[i+1]-gs[i])*(xs[i+1]-xs[i])
 P,g=load(sys.argv[1])
 r=np.hypot(P[:,1],P[:,2]); ang=np.arctan2(P[:,2],P[:,1])
 res={'unstretched':[], 'stretched':[]}
@@ -41,4 +48,19 @@ for k in range(16):
     m=(d<0.02)&(r>0.45)
     for name,(lo,hi) in {'unstretched':(0.2,1.8),'stretched':(2.4,5.6)}.items():
         res[name].append(crossings(P[m,0],g[m],lo,hi)/0.5)
-print(sys.argv[1], {k:round(float(np.median(v)),2) for k,v in res.items()})
+# Ring consistency: rings cross every line at the same x, so each crossing on one line has one
+# on the next line (1/16 turn away) within a quarter period (0.125); a stripe bent into a hook,
+# a U-turn or a swirl does not. The fraction of crossings with such a partner, both windows.
+t=0.5*(g.max()+g.min()); lines=[]
+for k in range(16):
+    th=-np.pi+2*np.pi*k/16
+    d=np.abs((ang-th+np.pi)%(2*np.pi)-np.pi); m=(d<0.02)&(r>0.45)
+    lines.append(np.concatenate([crossing_points(P[m,0],g[m],lo,hi,t) for lo,hi in ((0.2,1.8),(2.4,5.6))]))
+paired=total=0
+for k in range(16):
+    a,b=lines[k],lines[(k+1)%16]
+    for c in a:
+        total+=1; paired+=bool(len(b)) and np.abs(b-c).min()<0.125
+out={k:round(float(np.median(v)),2) for k,v in res.items()}
+out['rings']=round(float(paired)/max(total,1),3)
+print(sys.argv[1], out)
