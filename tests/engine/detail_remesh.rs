@@ -421,3 +421,64 @@ fn bad_input_is_an_error() {
     let empty = Surface::from_triangles(vec![], vec![]);
     assert!(remesh(&empty, &ok, &Control::new()).is_err());
 }
+
+/// The smallest `|cross| / longest edge²` over the faces (about the smallest angle in radians
+/// of a thin face; 0 for a face with a zero-length edge or collinear corners).
+fn worst_shape(s: &Surface) -> f64 {
+    s.faces
+        .iter()
+        .map(|f| {
+            let q = f.map(|v| to_f64(s.positions[v as usize]));
+            let l2 = |a: [f64; 3], b: [f64; 3]| {
+                let d = sub(a, b);
+                dot(d, d)
+            };
+            let c = cross(sub(q[1], q[0]), sub(q[2], q[0]));
+            dot(c, c).sqrt() / l2(q[0], q[1]).max(l2(q[1], q[2])).max(l2(q[2], q[0]))
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// A sphere with sharp spikes (single vertices pulled out to twice the radius): the spikes'
+/// rings become feature chains (dihedral over 60°), and a whole cone of space has a spike's tip
+/// as its closest point, so relaxation and back-projection used to put several vertices on
+/// one point (the koala scan's hierarchy had 12-34 faces with a zero-length edge per level).
+/// No face of the remeshed sphere may be degenerate.
+#[test]
+fn spikes_leave_no_degenerate_face() {
+    let mut s = uv_sphere(1.0, 40, 80);
+    let n = s.positions.len();
+    for k in 0..12 {
+        let v = (k * 7919 + 101) % n;
+        s.positions[v] = s.positions[v].map(|c| 2.0 * c);
+    }
+    for l in [0.08, 0.15, 0.3] {
+        let out = run(&s, l);
+        let worst = worst_shape(&out);
+        eprintln!(
+            "spiked sphere at L {l}: {} faces, worst shape {worst:.2e}",
+            out.faces.len()
+        );
+        assert!(worst > 1e-3, "L {l}: worst face shape {worst:.2e}");
+    }
+}
+
+/// The koala scan's hierarchy (the `detail` pipeline's levels against its low-resolution copy):
+/// no degenerate face on any level of either shape (before the guard in `remesh::project` and
+/// `relax`: 32-102 angles of 0 per source level).
+#[test]
+#[ignore = "needs ../shared/assets"]
+fn koala_scan_hierarchy_has_no_degenerate_face() {
+    let s = read_obj(&crate::common::shared_asset(
+        "perf_koala_odedstein/koala.obj",
+    ));
+    let t = read_obj(&crate::common::shared_asset(
+        "perf_koala_odedstein/koala_low_resolution.obj",
+    ));
+    let (ls, lt) = build_pair(&s, &t, &HierarchyParams::default(), &Control::new()).unwrap();
+    for (i, (a, b)) in ls.iter().zip(&lt).enumerate() {
+        let (ws, wt) = (worst_shape(&a.surface), worst_shape(&b.surface));
+        eprintln!("koala level {i}: worst face shape source {ws:.2e}, target {wt:.2e}");
+        assert!(ws > 1e-3 && wt > 1e-3, "level {i}: {ws:.2e} / {wt:.2e}");
+    }
+}

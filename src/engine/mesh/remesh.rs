@@ -14,7 +14,8 @@
 //!    neighbours, projected onto its tangent plane (area-weighted vertex normal); a vertex on a
 //!    boundary or feature chain moves to the midpoint of its two chain neighbours.
 //! 5. **Back-projection** of every vertex onto the reference surface (the closest point, from a
-//!    BVH of the reference's triangles).
+//!    BVH of the reference's triangles), except where that would make a face around the vertex
+//!    degenerate (ours: a scan's spikes drew neighbours onto one point; see `project`).
 //!
 //! `iterations = 10` by default (B&K report that 5-10 suffice; the tests measure the result).
 //!
@@ -261,12 +262,24 @@ fn collapse_geometry_ok(m: &HalfEdgeMesh, h: u32, p: [f64; 3], hi: f64) -> bool 
             });
             let after = cross(sub(q[1], q[0]), sub(q[2], q[0]));
             let (lb, la) = (length(before), length(after));
-            if la <= 1e-12 * lb.max(1e-300) || dot(before, after) < 0.5 * lb * la {
+            // A face already degenerate has no normal to keep; it does not block a collapse
+            // (which may be what removes it).
+            if lb <= 1e-12 * edge_scale2(&vs.map(|u| m.pos[u as usize])) {
+                continue;
+            }
+            if la <= 1e-12 * lb || dot(before, after) < 0.5 * lb * la {
                 return false;
             }
         }
     }
     true
+}
+
+/// The longest squared edge of a triangle (a length² scale for its cross product).
+fn edge_scale2(q: &[[f64; 3]; 3]) -> f64 {
+    dist2(q[0], q[1])
+        .max(dist2(q[1], q[2]))
+        .max(dist2(q[2], q[0]))
 }
 
 fn collapse_short(m: &mut HalfEdgeMesh, locked: &[bool], lo: f64, hi: f64) -> usize {
@@ -397,11 +410,53 @@ fn relax(m: &mut HalfEdgeMesh, locked: &[bool]) {
             }
         })
         .collect();
+    // Applied one by one, each only if it leaves no face around its vertex degenerate that was
+    // not ([`keeps_faces`]): two chain vertices with the same two chain neighbours (a feature
+    // loop of four edges around a scan's spike) would both go to their midpoint.
     for (v, p) in moves {
-        m.pos[v as usize] = p;
+        if keeps_faces(m, v, p) {
+            m.pos[v as usize] = p;
+        }
     }
 }
 
+/// Smallest sine-like shape measure `|cross| / (longest edge)²` of the faces around `v` with
+/// `v` at `p` (about the smallest angle for a thin face; 0 for a degenerate one).
+fn worst_face_shape(m: &HalfEdgeMesh, v: u32, p: [f64; 3]) -> f64 {
+    let mut worst = f64::INFINITY;
+    for h in m.outgoing(v) {
+        let f = m.face[h as usize];
+        if f == NONE {
+            continue;
+        }
+        let q = m
+            .face_vertices(f)
+            .map(|u| if u == v { p } else { m.pos[u as usize] });
+        let longest = dist2(q[0], q[1])
+            .max(dist2(q[1], q[2]))
+            .max(dist2(q[2], q[0]));
+        let area2 = length(cross(sub(q[1], q[0]), sub(q[2], q[0])));
+        worst = worst.min(if longest > 0.0 { area2 / longest } else { 0.0 });
+    }
+    worst
+}
+
+/// Whether moving `v` to `p` leaves its faces no more degenerate than [`DEGENERATE_SHAPE`], or
+/// no worse than they are.
+fn keeps_faces(m: &HalfEdgeMesh, v: u32, p: [f64; 3]) -> bool {
+    let after = worst_face_shape(m, v, p);
+    after >= DEGENERATE_SHAPE || after > worst_face_shape(m, v, m.pos[v as usize])
+}
+
+/// A face around a moved vertex thinner than this (`|cross| / longest edge²`, about its
+/// smallest angle in radians) is degenerate: the move is not taken.
+const DEGENERATE_SHAPE: f64 = 1e-3;
+
+/// Moves every vertex to its closest point on the reference, unless that would leave a face
+/// around it degenerate ([`keeps_faces`]): near a sharp vertex of the reference (a scan's
+/// spike) a whole cone of space has that vertex as its closest point, so neighbours would land
+/// on one point. Such a vertex keeps its relaxed position, within a relaxation step of the
+/// surface. Ours; B&K project unconditionally.
 fn project(m: &mut HalfEdgeMesh, bvh: &Bvh) {
     for v in 0..m.pos.len() {
         if !m.alive(v as u32) {
@@ -409,7 +464,10 @@ fn project(m: &mut HalfEdgeMesh, bvh: &Bvh) {
         }
         let p = m.pos[v].map(|x| x as f32);
         if let Some(hit) = bvh.closest_point(p, f32::INFINITY) {
-            m.pos[v] = hit.point.map(|x| x as f64);
+            let q = hit.point.map(|x| x as f64);
+            if keeps_faces(m, v as u32, q) {
+                m.pos[v] = q;
+            }
         }
     }
 }
