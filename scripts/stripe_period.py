@@ -25,20 +25,19 @@ def load(path):
         return arr
     P=acc(prim['attributes']['POSITION']); C=acc(prim['attributes']['COLOR_0'])
     return P,C[:,:3].mean(1)
+def crossing_points(x,g,lo,hi,t=None):
+    """Interpolated positions of the grey level t (default: the line's mid grey in the window)
+    crossed along one line in [lo, hi]."""
+    m=(x>=lo)&(x<=hi); xs=x[m]; gs=g[m]; o=np.argsort(xs); xs,gs=xs[o],gs[o]
+    if t is None: t=0.5*(gs.max()+gs.min())
+    s=gs>t; i=np.nonzero(s[1:]!=s[:-1])[0]
+    return xs[i]+(t-gs[i])/(gs[i+1]-gs[i])*(xs[i+1]-xs[i])
 def crossings(x,g,lo,hi):
     """Stripe period on one line: grey threshold crossings (linearly interpolated) in [lo, hi],
     2 x (last - first) / (count - 1), so the window's ends do not quantize it."""
-    m=(x>=lo)&(x<=hi); xs=x[m]; gs=g[m]; o=np.argsort(xs); xs,gs=xs[o],gs[o]
-    t=0.5*(gs.max()+gs.min()); s=gs>t
-    i=np.nonzero(s[1:]!=s[:-1])[0]
-    if len(i)<2: return 2*(hi-lo)
-    xc=xs[i]+(t-gs[i])/(gs[i+1]-gs[i])*(xs[i+1]-xs[i])
+    xc=crossing_points(x,g,lo,hi)
+    if len(xc)<2: return 2*(hi-lo)
     return 2*(xc[-1]-xc[0])/(len(xc)-1)
-def crossing_points(x,g,lo,hi,t):
-    """Interpolated positions of the grey level t crossed along one line in [lo, hi]."""
-    m=(x>=lo)&(x<=hi); xs=x[m]; gs=g[m]; o=np.argsort(xs); xs,gs=xs[o],gs[o]
-    s=gs>t; i=np.nonzero(s[1:]!=s[:-1])[0]
-    return xs[i]+(t-gs[i])/(gs[i+1]-gs[i])*(xs[i+1]-xs[i])
 P,g=load(sys.argv[1])
 r=np.hypot(P[:,1],P[:,2]); ang=np.arctan2(P[:,2],P[:,1])
 res={'unstretched':[], 'stretched':[]}

@@ -432,9 +432,7 @@ fn worst_face_shape(m: &HalfEdgeMesh, v: u32, p: [f64; 3]) -> f64 {
         let q = m
             .face_vertices(f)
             .map(|u| if u == v { p } else { m.pos[u as usize] });
-        let longest = dist2(q[0], q[1])
-            .max(dist2(q[1], q[2]))
-            .max(dist2(q[2], q[0]));
+        let longest = edge_scale2(&q);
         let area2 = length(cross(sub(q[1], q[0]), sub(q[2], q[0])));
         worst = worst.min(if longest > 0.0 { area2 / longest } else { 0.0 });
     }
