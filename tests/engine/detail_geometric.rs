@@ -3,11 +3,12 @@
 //! unit-area scaling, and agreement between two independent tessellations of one shape.
 
 use retex::engine::control::Control;
-use retex::engine::mesh::primitives::{cylinder, icosphere, uv_sphere};
+use retex::engine::mesh::primitives::{capsule, cylinder, icosphere, uv_sphere};
 use retex::engine::mesh::Surface;
 use retex::engine::methods::detail::geometric_features::{
     geometric_features, geometric_features_pair, GeometricError, GeometricParams, DIM, GROUPS,
 };
+use retex::engine::methods::detail::metric::ZScore;
 
 fn col(f: &[f64], j: usize) -> Vec<f64> {
     f.iter().skip(j).step_by(DIM).copied().collect()
@@ -265,6 +266,38 @@ fn a_retessellated_copy_gives_correlated_features() {
             assert!(cors.is_empty() || min > bound, "{name}: {min}");
         }
     }
+}
+
+/// The z-scoring's constant-column floor (`metric::RELATIVE_STD_FLOOR`) against measured
+/// noise: on round spheres every HKS and WKS column is constant in theory, so z-scoring must
+/// treat them as constant (measured std ÷ |mean|: HKS ≤ 7e-4, WKS 2e-3-7.5e-3; a floor of 1e-3
+/// kept the WKS noise, which this test fails on); on a capsule, whose spectrum varies along its
+/// axis, the WKS and the HKS's finer times must stay (measured ≥ 0.2 and ≥ 1e-2).
+#[test]
+fn the_z_score_floor_drops_a_spheres_spectral_noise_and_keeps_a_capsules_spectrum() {
+    let params = GeometricParams::default();
+    let spectral = |s: &Surface| {
+        let g = geometric_features(s, &params, &Control::new()).unwrap();
+        ZScore::fit(&g.values, DIM).inv_std[20..60].to_vec()
+    };
+    for (name, sphere) in [
+        ("icosphere 16", icosphere(1.0, 16)),
+        ("uv sphere 60 × 120", uv_sphere(1.0, 60, 120)),
+    ] {
+        let kept: Vec<usize> = (spectral(&sphere).iter().enumerate())
+            .filter(|(_, w)| **w > 0.0)
+            .map(|(j, _)| j + 20)
+            .collect();
+        println!("{name}: spectral columns kept {kept:?}");
+        assert!(kept.is_empty(), "{name}: noise columns kept {kept:?}");
+    }
+    let profile: Vec<f32> = (0..=60).map(|i| -1.5 + 0.05 * i as f32).collect();
+    let inv_std = spectral(&capsule(0.5, &profile, 48, |x| x));
+    let kept = |range: std::ops::Range<usize>| range.filter(|&j| inv_std[j - 20] > 0.0).count();
+    let (hks, wks) = (kept(20..37), kept(40..60));
+    println!("capsule: HKS columns 20..37 kept {hks} of 17, WKS kept {wks} of 20");
+    assert_eq!(wks, 20, "capsule WKS columns dropped");
+    assert_eq!(hks, 17, "capsule HKS columns dropped");
 }
 
 #[test]
