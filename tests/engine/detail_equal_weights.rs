@@ -48,8 +48,9 @@
 //! 0.00003 / 0.00013 (0.25), 0.00039 / 0.00026 (1.54) and 0.00028 / 0.00026 (1.07) (with the
 //! floor 1e-3: 0.01, 1.21, 0.83). Before the remesher skipped moves that leave a face degenerate
 //! (6e5cfc8), the learned ratios were 42.4 / 46.8 / 27.6 and identity's 0.00 / 1.40 / 1.44;
-//! with 8 candidates the learned ratios were 300 / 1164 / 34.8 then. The test runs the last three: about 110 s in all
-//! (learned 10-15 s each, identity 17-42 s), about 3 minutes while other builds share the cores.
+//! with 8 candidates the learned ratios were 300 / 1164 / 34.8 then. The test runs the last
+//! three: about 110 s in all (learned 10-15 s each, identity 17-42 s), about 3 minutes while
+//! other builds share the cores.
 
 use crate::detail_features::metric_features::extrude_profile;
 use crate::detail_method::std;
