@@ -157,18 +157,7 @@ fn elastiface_deformed_head_back_onto_the_textured_head() {
     assert_validator_clean(&out.model, "elastiface_head.glb");
     let r = &out.report.method_report;
     let fitted = output_asset(&out).primitives[0].positions.clone();
-    let err: Vec<f64> = fitted
-        .iter()
-        .zip(&world)
-        .map(|(x, w)| {
-            (0..3)
-                .map(|k| (x[k] as f64 - w[k]).powi(2))
-                .sum::<f64>()
-                .sqrt()
-                / diag
-        })
-        .collect();
-    let mean = err.iter().sum::<f64>() / err.len() as f64;
+    let mean = map_error_mean(&fitted, &world, diag);
     // Baseline: similarity from the correspondences, then closest-point snapping.
     let from: Vec<[f64; 3]> = picked
         .iter()
@@ -218,31 +207,7 @@ fn elastiface_deformed_head_back_onto_the_textured_head() {
     let h = r["hausdorff"]["max"].as_f64().unwrap();
     let flipped = r["flipped"]["area_fraction"].as_f64().unwrap();
     let turned = r["turned_over"]["area_fraction"].as_f64().unwrap();
-    // The known answer's turned-over area: fitted triangles whose normal points against the
-    // same triangle's on the head (the true answer: fitted vertex i should be head vertex i).
-    let normal = |x: &dyn Fn(usize) -> [f64; 3], t: [u32; 3]| {
-        let [a, b, c] = t.map(|v| x(v as usize));
-        let (u, v) = (
-            [b[0] - a[0], b[1] - a[1], b[2] - a[2]],
-            [c[0] - a[0], c[1] - a[1], c[2] - a[2]],
-        );
-        [
-            u[1] * v[2] - u[2] * v[1],
-            u[2] * v[0] - u[0] * v[2],
-            u[0] * v[1] - u[1] * v[0],
-        ]
-    };
-    let (mut all, mut against_truth) = (0.0f64, 0.0f64);
-    for t in &prim.triangles {
-        let nf = normal(&|i| fitted[i].map(f64::from), *t);
-        let nw = normal(&|i| world[i], *t);
-        let a = 0.5 * (nf[0] * nf[0] + nf[1] * nf[1] + nf[2] * nf[2]).sqrt();
-        all += a;
-        if nf[0] * nw[0] + nf[1] * nw[1] + nf[2] * nw[2] < 0.0 {
-            against_truth += a;
-        }
-    }
-    let against_truth = against_truth / all;
+    let against_truth = turned_against_truth(&fitted, &world, &prim.triangles);
     eprintln!(
         "head: map error mean {mean:.5} (snapping {base_mean:.5}); hausdorff {h:.5}; flipped \
          {flipped:.2e}; turned over {turned:.2e} (against the known answer {against_truth:.2e}); \
@@ -266,6 +231,93 @@ fn elastiface_deformed_head_back_onto_the_textured_head() {
     // 29.4 dB). Open defect; these bounds only guard against regressions.
     assert!(h < 0.015, "hausdorff {h}");
     assert!(flipped < 0.001, "flipped {flipped}");
+}
+
+/// Mean distance of fitted vertex i from head vertex i (the known answer), over `diag`.
+fn map_error_mean(fitted: &[[f32; 3]], world: &[[f64; 3]], diag: f64) -> f64 {
+    let sum: f64 = fitted
+        .iter()
+        .zip(world)
+        .map(|(x, w)| {
+            (0..3)
+                .map(|k| (x[k] as f64 - w[k]).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        })
+        .sum();
+    sum / fitted.len().max(1) as f64 / diag
+}
+
+/// The known answer's turned-over area: the area fraction of fitted triangles whose normal
+/// points against the same triangle's on the head (fitted vertex i should be head vertex i).
+fn turned_against_truth(fitted: &[[f32; 3]], world: &[[f64; 3]], tris: &[[u32; 3]]) -> f64 {
+    let normal = |x: &dyn Fn(usize) -> [f64; 3], t: [u32; 3]| {
+        let [a, b, c] = t.map(|v| x(v as usize));
+        let (u, v) = (
+            [b[0] - a[0], b[1] - a[1], b[2] - a[2]],
+            [c[0] - a[0], c[1] - a[1], c[2] - a[2]],
+        );
+        [
+            u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0],
+        ]
+    };
+    let (mut all, mut against) = (0.0f64, 0.0f64);
+    for t in tris {
+        let nf = normal(&|i| fitted[i].map(f64::from), *t);
+        let nw = normal(&|i| world[i], *t);
+        let a = 0.5 * (nf[0] * nf[0] + nf[1] * nf[1] + nf[2] * nf[2]).sqrt();
+        all += a;
+        if nf[0] * nw[0] + nf[1] * nw[1] + nf[2] * nw[2] < 0.0 {
+            against += a;
+        }
+    }
+    against / all
+}
+
+/// `free_visibility` on the deformed copy → head: the mouth bag and eye sockets (hidden behind
+/// closed lips and lids) follow their fitted neighbours instead of being squeezed into the
+/// slits. Against the known answer, the turned-over area and the map error fall; the fitted
+/// faces (no free corner) stay on the target. The report's whole-mesh figures grow (the free
+/// faces are off the target's own cavities by design), so they are not asserted here.
+#[test]
+#[ignore = "needs the shared assets (../shared/assets)"]
+fn elastiface_free_hidden_cavities_follow_instead_of_folding() {
+    let case = head_case();
+    let prim = &case.head.primitives[0];
+    let target = std::fs::read(&case.path).unwrap_or_default();
+    let run = |free: f64| {
+        let mut c = head_constraints(&case.corr);
+        c["params"] = json!({ "free_visibility": free });
+        let out = match run_glbs(&case.source, &target, c.clone()) {
+            Ok(o) => o,
+            Err(_) => run_gltf_target(&case.source, &case.path, c),
+        };
+        let fitted = output_asset(&out).primitives[0].positions.clone();
+        let mean = map_error_mean(&fitted, &case.world, case.diag);
+        let truth = turned_against_truth(&fitted, &case.world, &prim.triangles);
+        (out, mean, truth)
+    };
+    let (_, mean0, truth0) = run(0.0);
+    let (out, mean, truth) = run(0.1);
+    assert_validator_clean(&out.model, "elastiface_head_free.glb");
+    let ff = &out.report.method_report["fitted_faces"];
+    let free = ff["free_vertices"].as_u64().unwrap();
+    let h = ff["source_to_target"]["max"].as_f64().unwrap();
+    let flipped = ff["flipped"]["area_fraction"].as_f64().unwrap();
+    eprintln!(
+        "free 0.1: {free} free vertices, {} fitted faces; map error {mean:.5} (default \
+         {mean0:.5}); turned over against the known answer {truth:.2e} (default {truth0:.2e}); \
+         fitted faces: hausdorff {h:.5}, flipped {flipped:.2e}",
+        ff["faces"]
+    );
+    // Measured 2026-12-07: see the README ("Free hidden cavities").
+    assert!(free > 500, "free vertices {free}");
+    assert!(truth < 0.3 * truth0, "turned over {truth} vs {truth0}");
+    assert!(mean < 0.9 * mean0, "map error {mean} vs {mean0}");
+    assert!(h < 0.01, "fitted faces hausdorff {h}");
+    assert!(flipped < 0.001, "fitted faces flipped {flipped}");
 }
 
 fn run_gltf_target(

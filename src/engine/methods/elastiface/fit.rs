@@ -8,7 +8,7 @@
 use super::prepare::Prepared;
 use super::register::{self, StageReport};
 use super::system::LapRows;
-use super::{fairing, originals, refs, Call, ElastifaceParams, FairingReport, MethodError};
+use super::{fairing, free, originals, refs, Call, ElastifaceParams, FairingReport, MethodError};
 use crate::engine::control::Control;
 use crate::engine::mesh::Surface;
 use crate::engine::spatial::Bvh;
@@ -25,6 +25,9 @@ pub struct Fit {
     pub registration_originals: StageReport,
     /// BVH of the target in the solve frame.
     pub target_bvh: Bvh,
+    /// Per welded source vertex: free in the registration of the originals ([`free`]; empty
+    /// when `free_visibility` is 0).
+    pub free: Vec<bool>,
 }
 
 /// Fairs the prepared meshes (Laplacians `lap_s` / `lap_t`) and registers the source onto the
@@ -40,7 +43,7 @@ pub fn fit(
 ) -> Result<Fit, MethodError> {
     let (params, control) = (call.params, call.control);
     let ref_diag = params.reference_diagonal;
-    let (faired, reg, xt_bvh, paper_start) = fair_and_prepare(
+    let (faired, reg, xt_bvh, paper_start, free) = fair_and_prepare(
         (&p.xs, &p.src, lap_s),
         (&p.xt, &p.tgt, lap_t),
         &p.pairs,
@@ -77,6 +80,7 @@ pub fn fit(
             backward_weight: params.backward_weight,
             max_distance: params.backward_max_distance * ref_diag,
             min_cos: params.backward_min_cos,
+            free: &free,
         },
         control,
     )?;
@@ -93,6 +97,7 @@ pub fn fit(
         registration: base_report,
         registration_originals: orig_report,
         target_bvh: xt_bvh,
+        free,
     })
 }
 
@@ -112,12 +117,13 @@ type Overlapped<'a> = (
     register::Registration<'a>,
     Bvh,
     originals::PaperStart,
+    Vec<bool>,
 );
 
 /// The joint fairing (§3.2) of the aligned source and target (positions, surface, Laplacian),
 /// overlapped with what does not depend on it: the registration's pattern and analysis, the
-/// original target's hierarchy and the paper's solve of the originals (factor and fixed
-/// right-hand side) are prepared on the other core meanwhile.
+/// original target's hierarchy, the paper's solve of the originals (factor and fixed
+/// right-hand side) and the free vertices ([`free`]) are prepared on the other core meanwhile.
 fn fair_and_prepare<'a>(
     src: (&[[f64; 3]], &'a Surface, &'a LapRows),
     tgt: (&[[f64; 3]], &Surface, &LapRows),
@@ -155,10 +161,11 @@ fn fair_and_prepare<'a>(
             let bvh = Bvh::build(&x32, &tgt.1.faces);
             let reg = register::Registration::new(src.2, &src.1.faces, pairs)?;
             let start = reg.paper_start(src.0, tgt.0)?;
-            Ok::<_, MethodError>((reg, bvh, start))
+            let free = free::free_vertices(src.1, params.free_visibility, control)?;
+            Ok::<_, MethodError>((reg, bvh, start, free))
         },
     );
     let faired = faired?;
-    let (reg, bvh, start) = prepared?;
-    Ok((faired, reg, bvh, start))
+    let (reg, bvh, start, free) = prepared?;
+    Ok((faired, reg, bvh, start, free))
 }

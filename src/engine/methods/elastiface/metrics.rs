@@ -111,8 +111,17 @@ impl MeshRef<'_> {
             .or_else(|| self.bvh.closest_point(q, f32::INFINITY))
     }
 
+    /// The vertices used by `faces` (every vertex, for a whole surface), then four points per
+    /// face (see the module docs).
     fn samples(&self) -> Vec<[f64; 3]> {
-        let mut out = self.x.to_vec();
+        let mut used = vec![false; self.x.len()];
+        self.faces
+            .iter()
+            .for_each(|f| f.iter().for_each(|&v| used[v as usize] = true));
+        let mut out: Vec<[f64; 3]> = (self.x.iter().zip(&used))
+            .filter(|(_, &u)| u)
+            .map(|(p, _)| *p)
+            .collect();
         const B: [[f64; 3]; 4] = [
             [1.0 / 3.0, 1.0 / 3.0, 1.0 / 3.0],
             [2.0 / 3.0, 1.0 / 6.0, 1.0 / 6.0],
@@ -192,6 +201,46 @@ pub fn flipped(fitted: &MeshRef<'_>, target: &MeshRef<'_>) -> Flipped {
         })
         .collect();
     Flipped::from_faces(&per_face)
+}
+
+/// The figures of the fitted faces alone (no free corner, [`super::free`]).
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct FittedFaces {
+    /// Free template vertices.
+    pub free_vertices: usize,
+    /// Faces with no free corner.
+    pub faces: usize,
+    /// From those faces to the target (the free faces are not on the target by design).
+    pub source_to_target: Directed,
+    /// Those faces flipped against the target (area fraction of their area).
+    pub flipped: Flipped,
+}
+
+/// [`FittedFaces`] of `fitted` against `target`; `free` per vertex of `fitted`.
+pub fn fitted_faces(
+    fitted: &MeshRef<'_>,
+    target: &MeshRef<'_>,
+    free: &[bool],
+    diagonal: f64,
+) -> FittedFaces {
+    let faces: Vec<[u32; 3]> = fitted
+        .faces
+        .iter()
+        .filter(|f| f.iter().all(|&v| !free[v as usize]))
+        .copied()
+        .collect();
+    // Only the faces and positions of `sub` are read: it is always the measured side.
+    let sub = MeshRef {
+        x: fitted.x,
+        faces: &faces,
+        bvh: fitted.bvh,
+    };
+    FittedFaces {
+        free_vertices: free.iter().filter(|&&f| f).count(),
+        faces: faces.len(),
+        source_to_target: directed(&sub, target, diagonal),
+        flipped: flipped(&sub, target),
+    }
 }
 
 /// Triangles of `fitted` turned over against the same triangles on `template` (same faces, the

@@ -28,6 +28,11 @@
 //! solves per level, a flip guard); `backward_weight = 0` with `stiffness_levels = 1` and
 //! `original_iterations = 1` is the paper's stage.
 //!
+//! **Free vertices** ([`super::free`], `free_visibility` > 0): in the rounds a free vertex has
+//! no forward fitting term (its weight on the diagonal and right-hand side scaled by 0) and no
+//! backward pair lands on a triangle whose corners are all free, so it follows its fitted
+//! neighbours through the bending term.
+//!
 //! Speed (the same results): the fitted source's hierarchy for the backward searches is built
 //! at the first round and refitted to the moved vertices at the later ones
 //! ([`crate::engine::spatial::refit`]); forward and backward searches are bounded by the distance
@@ -49,7 +54,7 @@ use super::MethodError;
 
 /// The rounds after the paper's solve (see the module docs).
 #[derive(Clone, Copy, Debug)]
-pub struct Rounds {
+pub struct Rounds<'a> {
     /// Stiffness levels (bending [`STIFFNESS`]`[levels − 1 − k]`, at most its length).
     pub levels: usize,
     /// Solves per level.
@@ -60,6 +65,8 @@ pub struct Rounds {
     pub max_distance: f64,
     /// Smallest cosine between the source triangle's and the target vertex's normals.
     pub min_cos: f64,
+    /// Per source vertex: free ([`super::free`]; empty: none).
+    pub free: &'a [bool],
 }
 
 /// The paper's solve of the originals, prepared ([`Registration::paper_start`]).
@@ -138,7 +145,7 @@ struct Backward<'a> {
     normals: Vec<[f64; 3]>,
     edges: HashSet<(u32, u32)>,
     vertices: HashSet<u32>,
-    rounds: Rounds,
+    rounds: Rounds<'a>,
     /// The fitted source's hierarchy: built at the first round, refitted at the later ones.
     bvh: Option<Bvh>,
     /// Per target vertex, the source face of its last closest point (`u32::MAX`: none yet).
@@ -203,7 +210,9 @@ impl Backward<'_> {
                 [a] => self.vertices.contains(a),
                 _ => false,
             };
-            if on_boundary || dot(unit_normal(x, f), *nt) < self.rounds.min_cos {
+            let free = self.rounds.free;
+            let free = !free.is_empty() && f.iter().all(|&v| free[v as usize]);
+            if free || on_boundary || dot(unit_normal(x, f), *nt) < self.rounds.min_cos {
                 continue;
             }
             rows.push((RefRow::face(f, h.bary), w, *t));
@@ -225,7 +234,7 @@ impl Registration<'_> {
         rest: &[[f64; 3]],
         target: &FitTarget<'_>,
         carried: &Closest,
-        rounds: Rounds,
+        rounds: Rounds<'_>,
         control: &Control,
     ) -> Result<(Vec<[f64; 3]>, StageReport), MethodError> {
         let start = self.paper_start(rest, target.x)?;
@@ -267,7 +276,7 @@ impl Registration<'_> {
         rest: &[[f64; 3]],
         target: &FitTarget<'_>,
         carried: &Closest,
-        rounds: Rounds,
+        rounds: Rounds<'_>,
         control: &Control,
     ) -> Result<(Vec<[f64; 3]>, StageReport), MethodError> {
         let PaperStart {
@@ -286,6 +295,9 @@ impl Registration<'_> {
             bvh: None,
             near: Vec::new(),
         };
+        let free = rounds.free;
+        let scale: Vec<f64> = free.iter().map(|&f| if f { 0.0 } else { 1.0 }).collect();
+        let fit_scale = (!free.is_empty()).then_some(scale.as_slice());
         let work = control.stage(
             "registration_originals",
             (1 + rounds.levels.clamp(1, STIFFNESS.len()) * rounds.per_level) as u64,
@@ -313,10 +325,11 @@ impl Registration<'_> {
                 let extra = Extra {
                     rows: &rows,
                     faces: &faces,
+                    fit_scale,
                 };
                 let factor = self.factor_extra(&areas, mu, &extra)?;
                 let fixed = self.fixed_rhs_extra(rest, &areas, &target_refs, mu, &extra);
-                x = self.solve(&factor, &fixed, &c, mu)?;
+                x = self.solve_scaled(&factor, &fixed, &c, mu, fit_scale)?;
                 report.factorisations += 1;
                 report.solves += 1;
                 work.tick(1)?;

@@ -137,6 +137,13 @@ pub struct ElastifaceParams {
     /// target vertex's normal is below this. Default 0.5.
     #[schemars(range(min = -1, max = 1))]
     pub backward_min_cos: f64,
+    /// Template vertices whose ambient visibility (visible solid angle over 2π, 64 rays) is
+    /// below this are free in the registration of the originals: not pulled to the target,
+    /// they follow their fitted neighbours by bending (hidden cavities such as a mouth bag or
+    /// eye sockets; Wrap's "free polygons"; not in the paper). Default 0 (off); 0.1 frees the
+    /// mouth and eye cavities of the Lee Perry-Smith scan (README "elastiface").
+    #[schemars(range(min = 0, max = 1))]
+    pub free_visibility: f64,
     /// The target's bounding-box diagonal is scaled to this many units before solving (and the
     /// result scaled back), so that the weights mean what they mean in the paper whatever the
     /// model units. Default 50.
@@ -172,6 +179,7 @@ impl Default for ElastifaceParams {
             backward_weight: 300.0,
             backward_max_distance: 0.1,
             backward_min_cos: 0.5,
+            free_visibility: 0.0,
             reference_diagonal: 50.0,
             output: OutputMode::Positions,
             blend: None,

@@ -126,6 +126,8 @@ pub(super) struct Extra<'e> {
     pub rows: &'e [(RefRow, f64, [f64; 3])],
     /// The source face of each row (its corners are the row's vertices).
     pub faces: &'e [u32],
+    /// Per source vertex, a factor on its forward fitting weight (absent: 1 for every vertex).
+    pub fit_scale: Option<&'e [f64]>,
 }
 
 /// The weights of one stiffness level.
@@ -214,7 +216,10 @@ impl<'a> Registration<'a> {
                 None => v.add_outer(&row.entries(0), *w),
             }
         }
-        v.add_diagonal(&self.diagonal, mu.fit / n as f64);
+        match extra.fit_scale {
+            Some(scale) => v.add_diagonal_scaled(&self.diagonal, mu.fit / n as f64, scale),
+            None => v.add_diagonal(&self.diagonal, mu.fit / n as f64),
+        }
         for p in self.pairs {
             v.add_outer(&p.source.entries(0), mu.refs * p.weight / self.k_total);
         }
@@ -274,14 +279,28 @@ impl<'a> Registration<'a> {
         fit: &[[f64; 3]],
         mu: Mu,
     ) -> Result<Vec<[f64; 3]>, MethodError> {
+        self.solve_scaled(factor, fixed, fit, mu, None)
+    }
+
+    /// [`Self::solve`] with the per-vertex forward weight factors of [`Extra::fit_scale`].
+    pub(super) fn solve_scaled(
+        &self,
+        factor: &NumericCholesky,
+        fixed: &[Vec<f64>],
+        fit: &[[f64; 3]],
+        mu: Mu,
+        fit_scale: Option<&[f64]>,
+    ) -> Result<Vec<[f64; 3]>, MethodError> {
         let n = self.lap.len();
         let w = mu.fit / n as f64;
+        let scale = |i: usize| fit_scale.map_or(1.0, |s| s[i]);
         let mut rhs: Vec<Vec<f64>> = (0..3)
             .map(|d| {
                 fixed[d]
                     .iter()
                     .zip(fit)
-                    .map(|(b, c)| b + w * c[d])
+                    .enumerate()
+                    .map(|(i, (b, c))| b + w * scale(i) * c[d])
                     .collect()
             })
             .collect();

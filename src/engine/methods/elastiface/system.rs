@@ -356,6 +356,14 @@ impl Values {
         }
     }
 
+    /// Adds `w · scale[i]` at the `i`-th position of `diagonal` ([`Self::add_diagonal`] with a
+    /// factor per row).
+    pub fn add_diagonal_scaled(&mut self, diagonal: &[usize], w: f64, scale: &[f64]) {
+        for (&at, s) in diagonal.iter().zip(scale) {
+            self.vals[at] += w * s;
+        }
+    }
+
     /// Adds `w · rowᵀ row` for the point `row` of face `f` through `slots` (the face's 3 × 3
     /// positions, [`face_slots`]): the terms of [`Self::add_outer`]`(&row.entries(0), w)` in
     /// its order, zero weights skipped as there. Rows whose corners repeat a vertex take
