@@ -318,6 +318,10 @@ fn elastiface_free_hidden_cavities_follow_instead_of_folding() {
     assert!(mean < 0.9 * mean0, "map error {mean} vs {mean0}");
     assert!(h < 0.01, "fitted faces hausdorff {h}");
     assert!(flipped < 0.001, "fitted faces flipped {flipped}");
+    assert!(out.report.method_report["warnings"]
+        .as_array()
+        .unwrap()
+        .is_empty());
 }
 
 fn run_gltf_target(

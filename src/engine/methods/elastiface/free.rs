@@ -60,6 +60,22 @@ pub fn free_vertices(
     Ok(free)
 }
 
+/// Free vertices above this share of the template get a warning: most of it is then held by
+/// bending alone.
+pub const WARN_SHARE: f64 = 0.5;
+
+/// The warning of a `free` mask covering more than [`WARN_SHARE`] of the vertices.
+pub fn share_warning(free: &[bool], threshold: f64) -> Option<String> {
+    let share = free.iter().filter(|&&f| f).count() as f64 / free.len().max(1) as f64;
+    (share > WARN_SHARE).then(|| {
+        format!(
+            "free_visibility {threshold} leaves {:.0}% of the template's vertices unfitted (they \
+             follow by bending only); a smaller value fits more of them",
+            100.0 * share
+        )
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -86,6 +102,13 @@ mod tests {
         let sphere = primitives::icosphere(1.0, 8);
         let control = Control::new();
         assert!(free_vertices(&sphere, 0.0, &control).unwrap().is_empty());
+        assert_eq!(share_warning(&[], 0.0), None);
+        assert_eq!(share_warning(&[true, false], 0.2), None);
+        let warning = share_warning(&[true, true, false], 0.9).unwrap();
+        assert!(
+            warning.contains("free_visibility 0.9 leaves 67%"),
+            "{warning}"
+        );
         let free = free_vertices(&sphere, 0.5, &control).unwrap();
         assert_eq!(free.len(), sphere.positions.len());
         assert!(free.iter().all(|f| !f));

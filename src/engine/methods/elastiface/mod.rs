@@ -274,6 +274,7 @@ pub fn run(
 
     let _span = control.span(0.55, 1.0);
     let mut warnings: Vec<String> = fit::collapse_warning(&fitted.fairing).into_iter().collect();
+    warnings.extend(free::share_warning(&fitted.free, params.free_visibility));
     let (geometry, mut edits) = assemble::geometry(&call, &p, &lap_s, &fitted.fitted)?;
     let colors = assemble::colors(&call, &p, &geometry, &mut edits, &mut warnings)?;
     let report = report(params, &p, fitted, quality, colors, warnings);
