@@ -4,6 +4,7 @@
 //! measured against it, and the re-laid texture must reproduce the head's own texture (same UV
 //! layout).
 
+use retex::engine::math::{cross, sub};
 use retex::engine::methods::align::best_similarity;
 use retex::engine::spatial::Bvh;
 use retex::engine::texture::bake::rasterize_uv_layout;
@@ -253,15 +254,7 @@ fn map_error_mean(fitted: &[[f32; 3]], world: &[[f64; 3]], diag: f64) -> f64 {
 fn turned_against_truth(fitted: &[[f32; 3]], world: &[[f64; 3]], tris: &[[u32; 3]]) -> f64 {
     let normal = |x: &dyn Fn(usize) -> [f64; 3], t: [u32; 3]| {
         let [a, b, c] = t.map(|v| x(v as usize));
-        let (u, v) = (
-            [b[0] - a[0], b[1] - a[1], b[2] - a[2]],
-            [c[0] - a[0], c[1] - a[1], c[2] - a[2]],
-        );
-        [
-            u[1] * v[2] - u[2] * v[1],
-            u[2] * v[0] - u[0] * v[2],
-            u[0] * v[1] - u[1] * v[0],
-        ]
+        cross(sub(b, a), sub(c, a))
     };
     let (mut all, mut against) = (0.0f64, 0.0f64);
     for t in tris {
@@ -420,15 +413,7 @@ fn elastiface_region_blend_on_the_real_head() {
     // normals more than 90° from the head's); the blend must not add many of its own.
     let normal = |p: &[[f32; 3]], t: [u32; 3]| {
         let [a, b, c] = t.map(|v| p[v as usize].map(f64::from));
-        let (u, w) = (
-            [b[0] - a[0], b[1] - a[1], b[2] - a[2]],
-            [c[0] - a[0], c[1] - a[1], c[2] - a[2]],
-        );
-        [
-            u[1] * w[2] - u[2] * w[1],
-            u[2] * w[0] - u[0] * w[2],
-            u[0] * w[1] - u[1] * w[0],
-        ]
+        cross(sub(b, a), sub(c, a))
     };
     let turned = |p: &[[f32; 3]], q: &[[f32; 3]], t: [u32; 3]| {
         let (n0, n1) = (normal(p, t), normal(q, t));
