@@ -56,6 +56,7 @@ mod meshmatch_param_sweep;
 mod meshmatch_real_pairs;
 mod meshmatch_scale;
 mod meshmatch_statistics;
+mod meshmatch_stretch_period;
 mod meshmatch_stripes;
 mod meshmatch_transfer;
 mod meshmatch_units;

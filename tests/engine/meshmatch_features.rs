@@ -13,9 +13,9 @@ use retex::engine::geometry::spectrum::{laplace_spectrum, SpectrumParams};
 use retex::engine::mesh::primitives::{icosphere, uv_sphere};
 use retex::engine::mesh::{build_surface, Surface, WeldParams};
 use retex::engine::methods::meshmatch::features::{
-    automatic_features, fit_affine_map, geodesic_affinities, geodesic_affinities_with,
-    unit_area_hks_times, AffineRegularization, AffinityPair, AffinityParams,
-    AutomaticFeatureParams, FeatureError, FeatureField,
+    automatic_features, clamp_hks_to_source, fit_affine_map, geodesic_affinities,
+    geodesic_affinities_with, unit_area_hks_times, AffineRegularization, AffinityPair,
+    AffinityParams, AutomaticFeatureParams, FeatureError, FeatureField,
 };
 
 const HKS: usize = 8;
@@ -84,7 +84,7 @@ fn max_abs_diff(a: &[f32], b: &[f32]) -> f64 {
 }
 
 fn features(s: &Surface) -> FeatureField {
-    automatic_features(s, &AutomaticFeatureParams::default(), &Control::new()).unwrap()
+    automatic_features(s, &AutomaticFeatureParams::default(), None, &Control::new()).unwrap()
 }
 
 #[test]
@@ -110,7 +110,7 @@ fn field_accessors_and_params() {
     assert!((AffinityParams::default().sigma_fraction - 1.0 / 3.0).abs() < 1e-7);
     assert!(serde_json::from_str::<AffinityParams>(r#"{"sigma": 1}"#).is_err());
     // Fixed unit-area times: [4 ln10 / (4π·100), 4 ln10 / (8π)] = [7.33e-3, 0.366].
-    let t = unit_area_hks_times(100, 8);
+    let t = unit_area_hks_times(100, 8, 1.0);
     assert_eq!(t.len(), 8);
     assert!(
         (t[0] - 7.329e-3).abs() < 1e-5 && (t[7] - 0.36647).abs() < 1e-4,
@@ -207,6 +207,7 @@ fn scale_rotation_invariance() {
             up: None,
             ..Default::default()
         },
+        None,
         &Control::new(),
     )
     .unwrap();
@@ -522,17 +523,17 @@ fn affinities_and_features_errors() {
     assert!(fit_affine_map(&[], &[], AffineRegularization::Identity).is_err());
 
     let a = AutomaticFeatureParams::default();
-    assert!(automatic_features(&empty, &a, &c).is_err());
+    assert!(automatic_features(&empty, &a, None, &c).is_err());
     let tri = Surface::from_triangles(
         vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
         vec![[0, 1, 2]],
     );
     assert!(matches!(
-        automatic_features(&tri, &a, &c),
+        automatic_features(&tri, &a, None, &c),
         Err(FeatureError::Degenerate(_))
     ));
     let flat = Surface::from_triangles(vec![[0.0; 3]; 4], vec![[0, 1, 2], [0, 2, 3]]);
-    assert!(automatic_features(&flat, &a, &c).is_err());
+    assert!(automatic_features(&flat, &a, None, &c).is_err());
     for bad in [
         AutomaticFeatureParams {
             hks_times: 0,
@@ -561,7 +562,7 @@ fn affinities_and_features_errors() {
     ] {
         assert!(
             matches!(
-                automatic_features(&s, &bad, &c),
+                automatic_features(&s, &bad, None, &c),
                 Err(FeatureError::InvalidParam { .. })
             ),
             "{bad:?}"
@@ -569,13 +570,13 @@ fn affinities_and_features_errors() {
     }
     // A small mesh (42 vertices) uses 41 eigenpairs and still works.
     let small = ellipsoid(2, AXES);
-    let f = automatic_features(&small, &a, &c).unwrap();
+    let f = automatic_features(&small, &a, None, &c).unwrap();
     assert!(f.values.iter().all(|x| x.is_finite()));
     // Cancellation.
     let cancelled = Control::new();
     cancelled.cancel();
     assert!(matches!(
-        automatic_features(&s, &a, &cancelled),
+        automatic_features(&s, &a, None, &cancelled),
         Err(FeatureError::Cancelled(_))
     ));
     assert!(matches!(
@@ -637,4 +638,64 @@ fn bench_automatic_features_16k() {
         s.vertex_count()
     );
     assert!(f.values.iter().all(|x| x.is_finite()));
+}
+
+/// `HksUnits::Common` (the default): the target's HKS in the source's area unit. On a capsule
+/// whose right half is stretched 2× (the README's stretch case, with the same connectivity), the
+/// unchanged left end keeps the source's signature, where each surface at its own unit area
+/// makes the whole target look thinner (measured: the mean over x ≤ 1 of the largest |Δ ln HKS|,
+/// 0.0001 against 0.214).
+#[test]
+fn common_units_keep_the_signature_of_an_unchanged_part() {
+    use retex::engine::mesh::primitives::capsule;
+    let profile: Vec<f32> = (0..=64).map(|i| 4.0 * i as f32 / 64.0).collect();
+    let source = capsule(0.5, &profile, 48, |x| x);
+    let target = capsule(0.5, &profile, 48, |x| {
+        if x <= 2.0 {
+            x
+        } else {
+            x + (x.min(4.0) - 2.0)
+        }
+    });
+    let params = AutomaticFeatureParams::default();
+    let c = Control::new();
+    let fs = automatic_features(&source, &params, None, &c).unwrap();
+    let common = automatic_features(&target, &params, Some(source.area()), &c).unwrap();
+    let per_shape = automatic_features(&target, &params, None, &c).unwrap();
+    let left: Vec<usize> = (0..source.vertex_count())
+        .filter(|&v| source.positions[v][0] <= 1.0)
+        .collect();
+    let mean_difference = |f: &FeatureField| -> f64 {
+        let sum: f64 = left
+            .iter()
+            .map(|&v| max_abs_diff(&fs.vertex(v)[..HKS], &f.vertex(v)[..HKS]))
+            .sum();
+        sum / left.len() as f64
+    };
+    let (d_common, d_shape) = (mean_difference(&common), mean_difference(&per_shape));
+    eprintln!("unchanged end: mean max |Δ ln HKS| common {d_common:.4}, per shape {d_shape:.4}");
+    assert!(d_common < 0.02, "{d_common}");
+    assert!(d_shape > 5.0 * d_common, "{d_shape} vs {d_common}");
+    // Same surface, same unit: identical features.
+    let same = automatic_features(&source, &params, Some(source.area()), &c).unwrap();
+    assert!(max_abs_diff(&same.values, &fs.values) < 1e-4);
+}
+
+/// `clamp_hks_to_source`: each of the first `hks_dims` dimensions of the target is clamped to the
+/// source's range of that dimension; the other dimensions (`n·up`) are left alone.
+#[test]
+fn target_hks_is_clamped_to_the_source_range() {
+    let source = FeatureField {
+        dim: 3,
+        values: vec![1.0, -1.0, 0.5, 2.0, 1.0, -0.5, 1.5, 0.0, 0.0],
+    };
+    let mut target = FeatureField {
+        dim: 3,
+        values: vec![0.5, 3.0, 0.9, 2.5, -2.0, -0.9, 1.2, 0.5, 0.2],
+    };
+    clamp_hks_to_source(&mut target, &source, 2);
+    assert_eq!(
+        target.values,
+        vec![1.0, 1.0, 0.9, 2.0, -1.0, -0.9, 1.2, 0.5, 0.2]
+    );
 }

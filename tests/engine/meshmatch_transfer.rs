@@ -373,18 +373,14 @@ fn real_pairs_validate_and_keep_the_source_palette() {
         // Issue 14 item 1: every colour cluster covering ≥ 5% of the source keeps 0.5-2× its
         // share (the default vote schedule with HKS features; the plain σ = 0.5 vote left Spot's
         // black at 1.1% of 9%, ratio 7.4-8.0), and the total variation between the shares stays
-        // small: ≤ 0.12 (the issue's target) on Blub → fish (measured 0.040-0.062 over seeds),
-        // ≤ 0.13 on Spot → cat, where 0.120-0.121 is measured and the target is not met by its
-        // orange (1.9% of Spot, 12.7% of the cat: tail and paws matched to the horns by shape).
-        // A constant colour fails both (TV = 1 − the largest share, and a lost cluster).
-        let tv_bound = if name == "meshmatch_spot_cat" {
-            0.13
-        } else {
-            0.12
-        };
+        // ≤ 0.12 (the issue's target). Measured 0.072 on Spot → cat and 0.039 on Blub → fish;
+        // before the HKS time range was cut to a quarter, Spot → cat gave 0.120-0.121 (its
+        // orange, 1.9% of Spot, on 12.7% of the cat: tail and paws matched to the horns by the
+        // global times). A constant colour fails both (TV = 1 − the largest share, and a lost
+        // cluster).
         assert!(
-            stats.worst_ratio <= 2.0 && stats.tv <= tv_bound,
-            "{name}: colour statistics not kept (worst ratio ≤ 2, TV ≤ {tv_bound}): {stats}"
+            stats.worst_ratio <= 2.0 && stats.tv <= 0.12,
+            "{name}: colour statistics not kept (worst ratio ≤ 2, TV ≤ 0.12): {stats}"
         );
         let nnf = out.artifacts.iter().find(|a| a.name == "nnf.bin").unwrap();
         let file = NnfFile::decode(&nnf.bytes).expect("nnf.bin decodes");

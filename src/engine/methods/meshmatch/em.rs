@@ -51,7 +51,10 @@ use crate::engine::geometry::heat::Source;
 use crate::engine::mesh::Surface;
 
 use super::coarse_to_fine::{AllLevels, CoarseToFine};
-use super::features::{automatic_features, geodesic_affinities, AffinityPair, AffinityReport};
+use super::features::{
+    automatic_features, clamp_hks_to_source, geodesic_affinities, AffinityPair, AffinityReport,
+    HksUnits,
+};
 use super::fidelity::Fidelity;
 use super::levels::MeshLevels;
 use super::matcher::Nnf;
@@ -236,12 +239,20 @@ fn shape_features(
     let mut tgt_parts: Vec<(usize, Vec<f32>)> = Vec::new();
     let mut affinity = None;
     if use_auto {
-        let a = automatic_features(src.surface(fs), &params.hks, control)?;
-        let b = if input.mode.painted().is_some() {
+        let a = automatic_features(src.surface(fs), &params.hks, None, control)?;
+        let mut b = if input.mode.painted().is_some() {
             a.clone()
         } else {
-            automatic_features(tgt.surface(ft), &params.hks, control)?
+            // The target in the (scaled) source's area unit: see `HksUnits`.
+            let unit = match params.hks.units {
+                HksUnits::Common => Some(src.surface(fs).area()),
+                HksUnits::PerShape => None,
+            };
+            automatic_features(tgt.surface(ft), &params.hks, unit, control)?
         };
+        if params.hks.clamp_to_source {
+            clamp_hks_to_source(&mut b, &a, params.hks.hks_times);
+        }
         src_parts.push((a.dim, a.values));
         tgt_parts.push((b.dim, b.values));
     }

@@ -11,16 +11,41 @@
 //!   as given, then `λ ↦ λ·A`, `φ ↦ φ·√A`, `M ↦ M/A`, which is exactly the spectrum of the
 //!   scaled surface, since the cotan Laplacian is scale-covariant and the solver's shift and mass
 //!   floor are relative). The HKS of a unit-area surface is then invariant to the scale of the
-//!   input;
+//!   input. **The target is taken in the source's unit** ([`HksUnits::Common`], the default;
+//!   ours, the paper does not say): MeshMatch has already scaled the source into the target's
+//!   texture units, so the source is brought to unit area and the target by the *same* factor
+//!   (it keeps its area relative to the source's). A part of the target that has the source's
+//!   shape then has the source's signature. Each surface at its own unit area
+//!   ([`HksUnits::PerShape`], the default before 2026-12-07) makes a target with more area look
+//!   thinner everywhere: a capsule whose far half is stretched 2× has 1.4× the area, and at its
+//!   unchanged end the largest |Δ ln HKS| to the source averages 0.214 (0.0001 in the source's
+//!   unit; test `common_units_keep_the_signature_of_an_unchanged_part`); its unchanged half
+//!   then matched a band near the source's far end, 1 unit of source for 1.6 of target, and its
+//!   stripes came out ×1.14-1.22 wide (README "HKS units and time range"). A target
+//!   with area `a > 1` in the unit needs `a·k` eigenpairs for the same truncation at `t_min`
+//!   (`λ_k ≈ 4πk / a`), at most [`MAX_EIGENPAIR_FACTOR`]`·k`;
 //! - the HKS is evaluated at a **fixed set of times** for unit area, the same on every mesh (not
 //!   the per-mesh `4 ln 10 / λ` range of Sun et al., whose `λ₁` differs between shapes): `t`
-//!   log-spaced in `[t_min, t_max]` with `t_min = 4 ln 10 / (4π k)` and `t_max = 4 ln 10 / (8π)`,
+//!   log-spaced in `[t_min, f·t_max]` with `t_min = 4 ln 10 / (4π k)` and `t_max = 4 ln 10 / (8π)`,
 //!   `k` the number of eigenpairs ([`unit_area_hks_times`]). By Weyl's law `λ_k ≈ 4πk / A` on
 //!   any surface, so `t_min` is where `e^{−λ_k t} ≈ 10⁻⁴`: the eigenpairs beyond `k` contribute
 //!   about 10⁻⁴ of the heat there (the finest scale the truncated spectrum resolves); `8π` is `λ₁`
 //!   of the unit-area round sphere (`l(l+1)/r²` with `4πr² = 1`), so at `t_max` heat has spread
-//!   over the whole of a compact shape (global scale) while elongated shapes (smaller `λ₁`) still
-//!   vary. With the default `k = 100`: `t ∈ [7.33e-3, 0.366]` (unit area), a factor 50;
+//!   over the whole of a compact shape (global scale). `f` is
+//!   [`AutomaticFeatureParams::max_time_fraction`], default 1/4 (ours): the times near `t_max`
+//!   measure the distance to the shape's ends, which a stretched or differently proportioned
+//!   target cannot share with the source, so they pull whole regions onto one band of the
+//!   source (a stretched bar's middle all onto the source's centre) or one part onto an unrelated
+//!   one (Spot's horn colour onto the cat's tail and paws). With the default `k = 100`:
+//!   `t ∈ [7.33e-3, 0.0916]` (unit area), a factor 12.5;
+//! - **the target's values are clamped to the source's range**, per time
+//!   ([`clamp_hks_to_source`], `clamp_to_source`, default on; ours). Even a quarter of `t_max`
+//!   sees the ends of a 4-unit bar: the middle of a target lengthened there lies farther from
+//!   both ends than any source point, and a quadratic feature distance then pulls all of it onto
+//!   the few source vertices nearest the source's centre (0.22 units wide for stripes of period
+//!   0.5, measured on `nnf.bin`), which cannot hold a whole ring: the stripes swirl. Clamped, the
+//!   source's extreme is an exact match and its neighbourhood a near one, so the middle copies
+//!   a wider band;
 //! - the raw (un-normalized) HKS of the unit-area surface is stored as its **natural logarithm**
 //!   `ln HKS(x, t)`: the values of different times differ by decades (`≈ 1/(4πt)` at small `t`,
 //!   `→ 1/A = 1` at large `t`), and differences of logs are relative differences, so every time
@@ -196,6 +221,41 @@ pub struct AutomaticFeatureParams {
     /// Up direction (any length > 0, world axes) for the extra `n·up` dimension; `None` (JSON
     /// `null`) leaves that dimension out. Default: `[0, 1, 0]` (the paper: "positive Y").
     pub up: Option<[f32; 3]>,
+    /// The area unit of the target's HKS: [`HksUnits::Common`] (default) or
+    /// [`HksUnits::PerShape`]. See the module docs.
+    pub units: HksUnits,
+    /// The largest HKS time as a fraction of `t_max`, the time at which heat has spread over the
+    /// whole of a unit-area round sphere ([`unit_area_hks_times`]). Default: 0.25 (ours: the
+    /// paper gives no time range; README "HKS units and time range" has the sweep).
+    #[schemars(range(min = 0.01, max = 1))]
+    pub max_time_fraction: f64,
+    /// Clamp every HKS dimension of the target to the source's range of it
+    /// ([`clamp_hks_to_source`]). Default: true (ours; see the module docs).
+    pub clamp_to_source: bool,
+}
+
+/// The area unit in which the target's HKS is taken (`params.hks.units` of `meshmatch`).
+#[derive(
+    Clone,
+    Copy,
+    Debug,
+    Default,
+    PartialEq,
+    Eq,
+    serde::Serialize,
+    serde::Deserialize,
+    schemars::JsonSchema,
+)]
+#[serde(rename_all = "snake_case")]
+pub enum HksUnits {
+    /// Both surfaces in the unit of the (scaled) source: the source at unit area and the target
+    /// in the same unit, i.e. in the units the texture is transferred in, so a part of the
+    /// target that is the source's shape keeps the source's signature.
+    #[default]
+    Common,
+    /// Each surface at its own unit area (before 2026-12-07): a target with more area than the
+    /// source looks thinner everywhere, also where it is unchanged.
+    PerShape,
 }
 
 impl Default for AutomaticFeatureParams {
@@ -204,6 +264,9 @@ impl Default for AutomaticFeatureParams {
             hks_times: 8,
             eigenpairs: 100,
             up: Some([0.0, 1.0, 0.0]),
+            units: HksUnits::Common,
+            max_time_fraction: 0.25,
+            clamp_to_source: true,
         }
     }
 }
@@ -230,17 +293,21 @@ impl AutomaticFeatureParams {
     }
 }
 
+/// Most eigenpairs [`automatic_features`] takes for a surface larger than its unit, as a
+/// multiple of `eigenpairs` (a target 4× the source's area or more).
+pub const MAX_EIGENPAIR_FACTOR: f64 = 4.0;
+
 /// Fewest vertices [`automatic_features`] accepts (a tetrahedron).
 pub const MIN_FEATURE_VERTICES: usize = 4;
 
 /// The fixed HKS times of [`automatic_features`] for a unit-area surface and `eigenpairs`
 /// eigenpairs: `count` times log-spaced from `t_min = 4 ln 10 / (4π · eigenpairs)` to
-/// `t_max = 4 ln 10 / (8π)` (units: area; see the module docs), ascending; one time gives their
-/// geometric mean. For `eigenpairs < 3` (`t_min > t_max`) both ends are `t_max`.
-pub fn unit_area_hks_times(eigenpairs: usize, count: usize) -> Vec<f64> {
+/// `max_time_fraction · 4 ln 10 / (8π)` (units: area; see the module docs), ascending; one time
+/// gives their geometric mean. When `t_min` exceeds the largest time both ends are the largest.
+pub fn unit_area_hks_times(eigenpairs: usize, count: usize, max_time_fraction: f64) -> Vec<f64> {
     let c = 4.0 * std::f64::consts::LN_10;
     let pi = std::f64::consts::PI;
-    let t_max = c / (8.0 * pi);
+    let t_max = c / (8.0 * pi) * max_time_fraction;
     let t_min = (c / (4.0 * pi * eigenpairs.max(1) as f64)).min(t_max);
     (0..count)
         .map(|j| {
@@ -253,10 +320,11 @@ pub fn unit_area_hks_times(eigenpairs: usize, count: usize) -> Vec<f64> {
         .collect()
 }
 
-/// The paper's automatic shape features: `ln HKS` of the unit-area surface at
-/// [`unit_area_hks_times`] (dims `0..hks_times`, dimensionless log of 1/area units, comparable
-/// between meshes of any scale and tessellation) plus `n·up` (last dim, in `[−1, 1]`, when
-/// `params.up` is set). See the module docs. Stages: "features: spectrum" (plus the spectrum's
+/// The paper's automatic shape features: `ln HKS` of the surface at [`unit_area_hks_times`]
+/// (dims `0..hks_times`, dimensionless log of 1/area units, comparable between meshes of any
+/// scale and tessellation) plus `n·up` (last dim, in `[−1, 1]`, when `params.up` is set), with
+/// the area `unit_area` taken as 1 (`None`: the surface's own area; MeshMatch passes the
+/// source's for the target, [`HksUnits::Common`]). See the module docs. Stages: "features: spectrum" (plus the spectrum's
 /// own), "features: signature".
 ///
 /// # Errors
@@ -267,6 +335,7 @@ pub fn unit_area_hks_times(eigenpairs: usize, count: usize) -> Vec<f64> {
 pub fn automatic_features(
     surface: &Surface,
     params: &AutomaticFeatureParams,
+    unit_area: Option<f64>,
     control: &Control,
 ) -> Result<FeatureField, FeatureError> {
     let up = params.validate()?;
@@ -279,8 +348,23 @@ pub fn automatic_features(
             "{n} vertices, at least {MIN_FEATURE_VERTICES} needed"
         )));
     }
+    // The times are those of `eigenpairs` on a unit-area surface; a surface with area `a > 1`
+    // in the unit (the target in the source's) has `λ_k ≈ 4πk / a`, so it needs `a·k`
+    // eigenpairs for the same truncation at `t_min` (at most MAX_EIGENPAIR_FACTOR·k).
+    let base = params.eigenpairs.min(n - 1);
+    let own_area = surface.area();
+    let ratio = match unit_area {
+        Some(unit) if unit.is_finite() && unit > 0.0 => own_area / unit,
+        Some(unit) => return Err(FeatureError::Degenerate(format!("unit area {unit}"))),
+        None => 1.0,
+    };
+    let count = if ratio.is_finite() {
+        let scaled = (params.eigenpairs as f64 * ratio.clamp(1.0, MAX_EIGENPAIR_FACTOR)).ceil();
+        (scaled as usize).min(n - 1)
+    } else {
+        base
+    };
     control.stage("features: spectrum", 0)?;
-    let count = params.eigenpairs.min(n - 1);
     let mut spectrum = laplace_spectrum(
         surface,
         &SpectrumParams {
@@ -290,16 +374,17 @@ pub fn automatic_features(
         control,
     )?;
     control.stage("features: signature", 0)?;
-    // Rescale to the unit-area surface.
+    // Rescale to the unit-area surface (or the given unit).
     let area: f64 = spectrum.mass.iter().sum();
     if !(area.is_finite() && area > 0.0) {
         return Err(FeatureError::Degenerate(format!("total area {area}")));
     }
+    let area = unit_area.unwrap_or(area);
     let root = area.sqrt();
     spectrum.values.iter_mut().for_each(|l| *l *= area);
     spectrum.vectors.iter_mut().for_each(|p| *p *= root);
     spectrum.mass.iter_mut().for_each(|m| *m /= area);
-    let times = unit_area_hks_times(count, params.hks_times);
+    let times = unit_area_hks_times(base, params.hks_times, params.max_time_fraction);
     let hks = heat_kernel_signature_at(&spectrum, &times, HksNormalization::None)?;
 
     let d_hks = params.hks_times;
@@ -326,6 +411,30 @@ pub fn automatic_features(
     }
     debug_assert_eq!(values.len(), n * (d_hks + usize::from(up.is_some())));
     Ok(FeatureField { dim, values })
+}
+
+/// Clamps the first `hks_dims` dimensions of every target vertex to the range of that
+/// dimension over the source's vertices (`params.hks.clamp_to_source`). A target value beyond
+/// every source value (the middle of a lengthened part lies farther from the shape's ends than
+/// any point of the source) is then matched as the source's extreme itself, where the squared
+/// distance to the extreme grows only with the fourth power of the distance from it, instead of
+/// as a quadratic pull that shrinks the usable source to a band narrower than one stripe
+/// (module docs).
+pub fn clamp_hks_to_source(target: &mut FeatureField, source: &FeatureField, hks_dims: usize) {
+    let dims = hks_dims.min(source.dim).min(target.dim);
+    for j in 0..dims {
+        let column = (0..source.len()).map(|v| source.values[v * source.dim + j]);
+        let (lo, hi) = column.fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), x| {
+            (lo.min(x), hi.max(x))
+        });
+        if lo > hi {
+            return;
+        }
+        for v in 0..target.len() {
+            let x = &mut target.values[v * target.dim + j];
+            *x = x.clamp(lo, hi);
+        }
+    }
 }
 
 /// Parameters of [`geodesic_affinities`] (`params.affinity` of `meshmatch`).
