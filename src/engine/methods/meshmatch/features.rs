@@ -23,7 +23,7 @@
 //!   then matched a band near the source's far end, 1 unit of source for 1.6 of target, and its
 //!   stripes came out ×1.14-1.22 wide (README "HKS units and time range"). A target
 //!   with area `a > 1` in the unit needs `a·k` eigenpairs for the same truncation at `t_min`
-//!   (`λ_k ≈ 4πk / a`), at most [`MAX_EIGENPAIR_FACTOR`]`·k`;
+//!   (`λ_k ≈ 4πk / a`), at most [`MAX_EIGENPAIR_FACTOR`]`·k` and [`MAX_SCALED_EIGENPAIRS`];
 //! - the HKS is evaluated at a **fixed set of times** for unit area, the same on every mesh (not
 //!   the per-mesh `4 ln 10 / λ` range of Sun et al., whose `λ₁` differs between shapes): `t`
 //!   log-spaced in `[t_min, f·t_max]` with `t_min = 4 ln 10 / (4π k)` and `t_max = 4 ln 10 / (8π)`,
@@ -297,6 +297,10 @@ impl AutomaticFeatureParams {
 /// multiple of `eigenpairs` (a target 4× the source's area or more).
 pub const MAX_EIGENPAIR_FACTOR: f64 = 4.0;
 
+/// The scaled eigenpair count never exceeds this (the schema's largest `eigenpairs`), so a large
+/// target costs no more than a user may already ask for.
+pub const MAX_SCALED_EIGENPAIRS: usize = 500;
+
 /// Fewest vertices [`automatic_features`] accepts (a tetrahedron).
 pub const MIN_FEATURE_VERTICES: usize = 4;
 
@@ -360,7 +364,9 @@ pub fn automatic_features(
     };
     let count = if ratio.is_finite() {
         let scaled = (params.eigenpairs as f64 * ratio.clamp(1.0, MAX_EIGENPAIR_FACTOR)).ceil();
-        (scaled as usize).min(n - 1)
+        (scaled as usize)
+            .min(MAX_SCALED_EIGENPAIRS.max(params.eigenpairs))
+            .min(n - 1)
     } else {
         base
     };
