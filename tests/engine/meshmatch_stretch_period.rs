@@ -18,15 +18,16 @@
 //! seeds 1 and 4 unstretched ×1.25 and ×1.18) and without the clamp alone
 //! (`hks.clamp_to_source` false: the bar's seed 3 swirls, rings 0.891).
 
-use crate::meshmatch_common::{capsule, colored_points, glb_of, profile, run_bytes};
+use crate::meshmatch_common::{
+    capsule, colored_points, glb_of, profile, run_bytes, update_stripe, UPDATE_PERIOD,
+};
 
-const PERIOD: f32 = 0.5;
+/// The source's stripes: those of the texture-update case (period 0.5).
+const PERIOD: f32 = UPDATE_PERIOD;
 
-fn grey(x: f32) -> f32 {
-    let s = (std::f32::consts::TAU * x / PERIOD).sin();
-    0.05 + 0.85 * (0.5 + 0.5 * (4.0 * s).tanh())
-}
-
+/// The edit, x ∈ [2, 4] stretched to [2, 6]: written as the bench's (`src/cli/bench_meshmatch_pairs.rs`,
+/// not reachable from tests), not as `lengthen(x, 4.0)`, whose f32 rounding differs and the
+/// synthesis is chaotic in its input.
 fn stretch(x: f32) -> f32 {
     if x <= 2.0 {
         x
@@ -164,7 +165,7 @@ fn source_and_target(shape: &str) -> (Vec<u8>, Vec<u8>) {
     let colors: Vec<[f32; 4]> = sp
         .iter()
         .map(|p| {
-            let g = grey(p[0]);
+            let g = update_stripe(p[0]);
             [g, g, g, 1.0]
         })
         .collect();
