@@ -1,5 +1,7 @@
 //! Issue 17, part 4: three `retex serve` replicas on one database run 30 jobs while one replica
 //! is `kill -9`'d in the middle of a job and another is restarted (SIGTERM, then started again).
+//! The killed replica is the one that claimed a slow job submitted first (about 15 s), so the
+//! kill always interrupts a running attempt.
 //! Every job succeeds exactly once visibly: the job the killed replica held goes back to the
 //! queue once its lease expires (measured through the change feed, against the lease time) and
 //! runs again elsewhere (attempt 2), the restarted replica gives its job back without spending
@@ -47,6 +49,21 @@ pub(crate) fn wait_busy(base: &str) {
         assert!(
             start.elapsed() < Duration::from_secs(60),
             "{base} never ran a job"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Waits (up to a minute) until one of `replicas` runs a job; returns its index.
+fn wait_any_busy(replicas: &[(ServeProcess, String)]) -> usize {
+    let start = Instant::now();
+    loop {
+        if let Some(i) = replicas.iter().position(|(_, base)| busy_workers(base) > 0) {
+            return i;
+        }
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "no replica ran a job"
         );
         std::thread::sleep(Duration::from_millis(20));
     }
@@ -119,23 +136,34 @@ fn kill_and_restart(mut blobs: Blobs) {
         }
     })));
 
-    let mut ids = Vec::new();
+    // A slow job first, alone in the queue: the replica that claims it is the one killed, so
+    // the kill lands mid-job for certain (a short job could end between the gauge read and the
+    // kill, and then no attempt would be interrupted).
+    let slow = submit(&replicas[0].1, &spot_parts(8192), &[]);
+    assert_eq!(slow.status, 202, "{}", String::from_utf8_lossy(&slow.body));
+    let slow_id: Uuid = slow.json()["id"].as_str().unwrap().parse().unwrap();
+    let victim = wait_any_busy(&replicas);
+    let mut ids = vec![slow_id];
     for i in 0..JOBS {
         let r = submit(&replicas[i % 3].1, &spot_parts(1024), &[]);
         assert_eq!(r.status, 202, "{}", String::from_utf8_lossy(&r.body));
         ids.push(r.json()["id"].as_str().unwrap().parse::<Uuid>().unwrap());
     }
 
-    // kill -9 replica 2 while it runs a job.
-    wait_busy(&replicas[2].1);
-    replicas[2].0 .0.kill().unwrap();
-    replicas[2].0 .0.wait().unwrap();
+    // kill -9 the victim while it runs the slow job (about 15 s long).
+    let doc = get(&format!("{}/v1/jobs/{slow_id}", replicas[victim].1)).json();
+    assert_eq!(doc["status"], "processing", "{doc}");
+    replicas[victim].0 .0.kill().unwrap();
+    replicas[victim].0 .0.wait().unwrap();
     let killed_at = Utc::now();
-    // Restart replica 1 (graceful stop while it runs a job: the job goes back to the queue).
-    wait_busy(&replicas[1].1);
-    terminate(&mut replicas[1].0);
-    replicas[1] = blobs.spawn(&url, 1);
-    let live = [replicas[0].1.clone(), replicas[1].1.clone()];
+    // Restart another replica (graceful stop while it runs a job: the job goes back to the
+    // queue).
+    let restarted = (victim + 1) % 3;
+    let other = (victim + 2) % 3;
+    wait_busy(&replicas[restarted].1);
+    terminate(&mut replicas[restarted].0);
+    replicas[restarted] = blobs.spawn(&url, restarted);
+    let live = [replicas[other].1.clone(), replicas[restarted].1.clone()];
 
     let mut attempts = HashMap::new();
     for (i, id) in ids.iter().enumerate() {
@@ -153,16 +181,16 @@ fn kill_and_restart(mut blobs: Blobs) {
         assert!(a == b, "job {id}: both replicas serve the same result");
     }
 
-    // Exactly one job was interrupted by the crash: it ran a second time. The job of the
+    // Exactly one job, the slow one, was interrupted by the crash: it ran a second time. The job of the
     // gracefully stopped replica gave its attempt back.
     let twice: Vec<&Uuid> = attempts
         .iter()
         .filter(|(_, n)| **n == 2)
         .map(|(id, _)| id)
         .collect();
-    assert_eq!(twice.len(), 1, "attempts: {attempts:?}");
+    assert_eq!(twice, [&slow_id], "attempts: {attempts:?}");
     assert!(attempts.values().all(|n| *n <= 2), "{attempts:?}");
-    let crashed = *twice[0];
+    let crashed = slow_id;
     let back = requeued.lock().unwrap()[&crashed];
     let waited = (back - killed_at).to_std().unwrap_or_default();
     // Reclaimed once its lease ran out: within the lease plus one poll tick (1 s) and the
@@ -171,10 +199,10 @@ fn kill_and_restart(mut blobs: Blobs) {
         waited <= Duration::from_secs(LEASE_SECS + 3),
         "the crashed job went back to the queue {waited:?} after the kill (lease {LEASE_SECS} s)"
     );
-    // Every list shows the 30 jobs succeeded, nothing else.
+    // Every list shows the 30 jobs and the slow one succeeded, nothing else.
     let list = get(&format!("{}/v1/jobs?limit=100", live[0])).json();
     let jobs = list["jobs"].as_array().unwrap();
-    assert_eq!(jobs.len(), JOBS);
+    assert_eq!(jobs.len(), JOBS + 1);
     assert!(jobs.iter().all(|j| j["status"] == "succeeded"), "{list}");
 
     // Every artifact is in the bucket under its committing attempt's folder, as recorded.
