@@ -380,3 +380,87 @@ pub fn linear(c: u8) -> f64 {
         ((s + 0.055) / 1.055).powf(2.4)
     }
 }
+
+/// The Lee Perry-Smith head's vertices of the `upper_lip` and `lower_lip` landmarks
+/// (`tests/data/elastiface/head_to_deformed.json`, pairs 9 and 10).
+pub const HEAD_LIP_VERTICES: [usize; 2] = [2539, 2920];
+
+/// Mean map errors (over the target's diagonal) of the head's lip region: the vertices within
+/// 4 % of the head's diagonal of the midpoint of [`HEAD_LIP_VERTICES`].
+#[derive(Debug)]
+pub struct LipErrors {
+    /// Every vertex of the region (the mouth bag's inside too).
+    pub all: f64,
+    /// The front-facing ones (head normal z > 0.3: the visible lips and skin around them).
+    pub front: f64,
+    /// Front-facing, above the midpoint (the upper lip).
+    pub upper: f64,
+    /// Front-facing, below the midpoint (the lower lip).
+    pub lower: f64,
+}
+
+/// [`LipErrors`] of `fitted` against the known answer `truth` (vertex i ↦ `truth[i]`); the
+/// region is chosen on the head's own positions `head` (y up, the face toward +z).
+pub fn lip_errors(
+    head: &[[f64; 3]],
+    tris: &[[u32; 3]],
+    fitted: &[[f64; 3]],
+    truth: &[[f64; 3]],
+    diag: f64,
+) -> LipErrors {
+    use retex::engine::math::{cross, length, sub};
+    let head_diag = {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for p in head {
+            for k in 0..3 {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        }
+        length(sub(hi, lo))
+    };
+    let [u, l] = HEAD_LIP_VERTICES.map(|v| head[v]);
+    let mid: [f64; 3] = std::array::from_fn(|k| 0.5 * (u[k] + l[k]));
+    let mut normal = vec![[0.0f64; 3]; head.len()];
+    for t in tris {
+        let [a, b, c] = t.map(|v| head[v as usize]);
+        let n = cross(sub(b, a), sub(c, a));
+        for v in t {
+            for k in 0..3 {
+                normal[*v as usize][k] += n[k];
+            }
+        }
+    }
+    let mut sums = [(0.0, 0usize); 4];
+    for i in 0..head.len() {
+        if length(sub(head[i], mid)) > 0.04 * head_diag {
+            continue;
+        }
+        let e = length(sub(fitted[i], truth[i])) / diag;
+        let front = normal[i][2] / length(normal[i]).max(1e-300) > 0.3;
+        let upper = head[i][1] > mid[1];
+        for (slot, on) in [
+            (0, true),
+            (1, front),
+            (2, front && upper),
+            (3, front && !upper),
+        ] {
+            if on {
+                sums[slot].0 += e;
+                sums[slot].1 += 1;
+            }
+        }
+    }
+    let [all, front, upper, lower] = sums.map(|(s, n)| s / n.max(1) as f64);
+    assert!(
+        sums[3].1 > 0 && sums[2].1 > 0,
+        "an empty lip region: {sums:?}"
+    );
+    LipErrors {
+        all,
+        front,
+        upper,
+        lower,
+    }
+}
