@@ -31,7 +31,7 @@ const HEAD: &str = "src_lee_perry_smith_head/LeePerrySmith_textured_derived.gltf
 /// Index of the nose-tip landmark in every constraints file.
 const NOSE_TIP: usize = 4;
 
-fn data(name: &str) -> Value {
+pub(crate) fn data(name: &str) -> Value {
     let p = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("tests/data/elastiface")
         .join(name);
@@ -39,7 +39,7 @@ fn data(name: &str) -> Value {
 }
 
 /// World positions and triangles of an asset's primitives (instanced once).
-fn world_mesh(a: &Asset) -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
+pub(crate) fn world_mesh(a: &Asset) -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
     let mut x = Vec::new();
     let mut f = Vec::new();
     for inst in &a.instances {
@@ -52,7 +52,7 @@ fn world_mesh(a: &Asset) -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
     (x, f)
 }
 
-fn diagonal(x: &[[f64; 3]]) -> f64 {
+pub(crate) fn diagonal(x: &[[f64; 3]]) -> f64 {
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
     for p in x {
@@ -149,7 +149,11 @@ fn face_figures(
     }
 }
 
-fn run(source: (&str, &BlobSet), target: (&str, &BlobSet), constraints: &Value) -> TransferOutput {
+pub(crate) fn run(
+    source: (&str, &BlobSet),
+    target: (&str, &BlobSet),
+    constraints: &Value,
+) -> TransferOutput {
     let c = retex::engine::asset::constraints::Constraints::from_json(
         constraints.to_string().as_bytes(),
     )

@@ -43,6 +43,7 @@ mod elastiface_inputs;
 mod elastiface_landmarks;
 mod elastiface_real;
 mod elastiface_region;
+mod elastiface_remeshed;
 mod elastiface_shapes;
 mod fan_pruning;
 mod fuzz_ingest;
