@@ -160,6 +160,15 @@ pub struct BoundaryReport {
     pub derived_weight: f64,
 }
 
+/// A paired loop: the source loop's vertices and the target loop's, each in traversal order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LoopPair {
+    /// Source loop vertices.
+    pub source: Vec<u32>,
+    /// Target loop vertices (edge `i` from `target[i]` to `target[(i + 1) % len]`).
+    pub target: Vec<u32>,
+}
+
 /// One side: welded positions, faces and bounding-box diagonal.
 pub struct LoopSide<'a> {
     /// Positions.
@@ -170,6 +179,9 @@ pub struct LoopSide<'a> {
     pub diagonal: f64,
 }
 
+/// What [`derive_boundary_pairs`] gives: the derived pairs, their figures and the loop pairs.
+pub type DerivedLoops = (Vec<RefPair>, BoundaryReport, Vec<LoopPair>);
+
 /// The derived pairs of every boundary loop pair (see the module docs).
 ///
 /// # Errors
@@ -178,7 +190,7 @@ pub fn derive_boundary_pairs(
     source: &LoopSide<'_>,
     target: &LoopSide<'_>,
     hand: &[RefPair],
-) -> Result<(Vec<RefPair>, BoundaryReport), ConstraintsError> {
+) -> Result<DerivedLoops, ConstraintsError> {
     let src_loops = boundary_loops(source.x, source.faces);
     let tgt_loops = boundary_loops(target.x, target.faces);
     let mut report = BoundaryReport {
@@ -212,6 +224,7 @@ pub fn derive_boundary_pairs(
     }
     let mut target_owner: HashMap<usize, usize> = HashMap::new();
     let mut derived = Vec::new();
+    let mut loop_pairs = Vec::new();
     for (ls, anchors) in by_loop.iter_mut().enumerate() {
         if anchors.is_empty() {
             continue;
@@ -245,6 +258,10 @@ pub fn derive_boundary_pairs(
             target.x,
             anchors,
         )?);
+        loop_pairs.push(LoopPair {
+            source: src_loops[ls].verts.clone(),
+            target: tgt_loops[lt].verts.clone(),
+        });
         report.paired_loops += 1;
     }
     let weight = if derived.is_empty() {
@@ -257,7 +274,7 @@ pub fn derive_boundary_pairs(
     }
     report.derived_pairs = derived.len();
     report.derived_weight = weight;
-    Ok((derived, report))
+    Ok((derived, report, loop_pairs))
 }
 
 /// The derived pairs of one loop pair, anchors sorted by source arc length.

@@ -5,6 +5,7 @@
 //! backward pairs). The registration's pattern, analysis and the target's solve-frame BVH are
 //! built while the fairing runs.
 
+use super::boundary_fit::BoundaryFit;
 use super::prepare::Prepared;
 use super::register::{self, StageReport};
 use super::system::LapRows;
@@ -69,6 +70,11 @@ pub fn fit(
         faces: &p.tgt.faces,
         bvh: &xt_bvh,
     };
+    let boundary = if params.boundary_to_boundary {
+        BoundaryFit::new(&p.loop_pairs, &p.xt)
+    } else {
+        None
+    };
     let (fitted, mut orig_report) = reg.originals_from(
         paper_start,
         &p.xs,
@@ -81,6 +87,7 @@ pub fn fit(
             max_distance: params.backward_max_distance * ref_diag,
             min_cos: params.backward_min_cos,
             free: &free,
+            boundary: boundary.as_ref(),
         },
         control,
     )?;

@@ -46,6 +46,7 @@
 pub mod assemble;
 pub mod blend;
 pub mod boundary;
+pub mod boundary_fit;
 pub mod fairing;
 pub mod fit;
 pub mod frame;

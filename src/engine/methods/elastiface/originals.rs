@@ -28,6 +28,10 @@
 //! solves per level, a flip guard); `backward_weight = 0` with `stiffness_levels = 1` and
 //! `original_iterations = 1` is the paper's stage.
 //!
+//! **Boundary onto boundary** ([`super::boundary_fit`], `boundary_to_boundary`, default on):
+//! in the rounds, the vertices of a paired source boundary loop fit onto their closest point on
+//! the paired target loop instead of the target surface.
+//!
 //! **Free vertices** ([`super::free`], `free_visibility` > 0): in the rounds a free vertex has
 //! no forward fitting term (its weight on the diagonal and right-hand side scaled by 0) and no
 //! backward pair lands on a triangle whose corners are all free, so it follows its fitted
@@ -47,6 +51,7 @@ use crate::engine::linalg::NumericCholesky;
 use crate::engine::math::{cross, dot, length, sub};
 use crate::engine::spatial::{Bvh, ClosestHit};
 
+use super::boundary_fit::BoundaryFit;
 use super::refs::RefRow;
 use super::register::{near_bound, rms, Closest, Extra, FitTarget, Mu, Registration, StageReport};
 use super::system::voronoi_areas;
@@ -67,6 +72,9 @@ pub struct Rounds<'a> {
     pub min_cos: f64,
     /// Per source vertex: free ([`super::free`]; empty: none).
     pub free: &'a [bool],
+    /// Paired boundary loops whose source vertices fit onto their target loop
+    /// ([`super::boundary_fit`]; `None`: the surface's closest point for every vertex).
+    pub boundary: Option<&'a BoundaryFit>,
 }
 
 /// The paper's solve of the originals, prepared ([`Registration::paper_start`]).
@@ -319,7 +327,10 @@ impl Registration<'_> {
             };
             for _ in 0..rounds.per_level {
                 let near = target.closest_near(&x, Some(&previous));
-                let c = target.points(&near);
+                let mut c = target.points(&near);
+                if let Some(b) = rounds.boundary {
+                    b.snap(&x, &mut c);
+                }
                 previous = near;
                 let (rows, faces) = back.rows(&x, self.faces);
                 let extra = Extra {

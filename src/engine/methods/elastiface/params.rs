@@ -137,6 +137,11 @@ pub struct ElastifaceParams {
     /// target vertex's normal is below this. Default 0.5.
     #[schemars(range(min = -1, max = 1))]
     pub backward_min_cos: f64,
+    /// In the registration of the originals, the vertices of a source boundary loop that
+    /// correspondences pair with a target loop fit onto that target loop (its closest point on
+    /// the loop) instead of onto the target surface (not in the paper; README "elastiface").
+    /// Default true.
+    pub boundary_to_boundary: bool,
     /// Template vertices whose ambient visibility (visible solid angle over 2π, 64 rays) is
     /// below this are free in the registration of the originals: not pulled to the target,
     /// they follow their fitted neighbours by bending (hidden cavities such as a mouth bag or
@@ -179,6 +184,7 @@ impl Default for ElastifaceParams {
             backward_weight: 300.0,
             backward_max_distance: 0.1,
             backward_min_cos: 0.5,
+            boundary_to_boundary: true,
             free_visibility: 0.0,
             reference_diagonal: 50.0,
             output: OutputMode::Positions,

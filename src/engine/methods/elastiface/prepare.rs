@@ -5,7 +5,7 @@
 //! ([`super::boundary`], Fig. 5). The part-based morph's vertex weights (§5, [`super::region`])
 //! are read here too, as they only need the source.
 
-use super::boundary::{self, BoundaryReport};
+use super::boundary::{self, BoundaryReport, LoopPair};
 use super::frame::Frame;
 use super::metrics::{self, Residuals};
 use super::refs::{self, RefPair};
@@ -44,6 +44,8 @@ pub struct Prepared {
     pub pairs: Vec<RefPair>,
     /// The boundary-loop pairs' figures.
     pub boundary: BoundaryReport,
+    /// The paired boundary loops (source loop, target loop).
+    pub loop_pairs: Vec<LoopPair>,
     /// Correspondence residuals after the similarity alone (relative to the target diagonal).
     pub residuals_initial: Residuals,
 }
@@ -115,7 +117,7 @@ pub fn prepare(call: &Call<'_>) -> Result<Prepared, MethodError> {
         .collect();
     let ref_diag = params.reference_diagonal;
     let src_diag = bbox_diagonal(&xs);
-    let (derived, boundary) = boundary::derive_boundary_pairs(
+    let (derived, boundary, loop_pairs) = boundary::derive_boundary_pairs(
         &boundary::LoopSide {
             x: &xs,
             faces: &src.faces,
@@ -145,6 +147,7 @@ pub fn prepare(call: &Call<'_>) -> Result<Prepared, MethodError> {
         hand,
         pairs,
         boundary,
+        loop_pairs,
         residuals_initial,
     })
 }
