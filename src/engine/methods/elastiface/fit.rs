@@ -99,6 +99,7 @@ pub fn fit(
             iterations: faired.iterations,
             area_ratio: faired.area_ratio,
             collapse_guard: faired.collapse_guard,
+            fold_guard: faired.fold_guard,
             unanchored_components: faired.unanchored_components,
         },
         registration: base_report,

@@ -97,6 +97,8 @@ pub struct FairingReport {
     pub area_ratio: f64,
     /// Whether the collapse guard stopped the area updates.
     pub collapse_guard: bool,
+    /// Whether the fold guard stopped the iterations (the base meshes began to fold).
+    pub fold_guard: bool,
     /// Components without reference points, anchored weakly: (source, target).
     pub unanchored_components: (usize, usize),
 }
