@@ -381,6 +381,19 @@ pub fn linear(c: u8) -> f64 {
     }
 }
 
+/// The bounding-box diagonal of world positions.
+pub fn diagonal(x: &[[f64; 3]]) -> f64 {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in x {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt()
+}
+
 /// The Lee Perry-Smith head's vertices of the `upper_lip` and `lower_lip` landmarks
 /// (`tests/data/elastiface/head_to_deformed.json`, pairs 9 and 10).
 pub const HEAD_LIP_VERTICES: [usize; 2] = [2539, 2920];
@@ -409,17 +422,7 @@ pub fn lip_errors(
     diag: f64,
 ) -> LipErrors {
     use retex::engine::math::{cross, length, sub};
-    let head_diag = {
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for p in head {
-            for k in 0..3 {
-                lo[k] = lo[k].min(p[k]);
-                hi[k] = hi[k].max(p[k]);
-            }
-        }
-        length(sub(hi, lo))
-    };
+    let head_diag = diagonal(head);
     let [u, l] = HEAD_LIP_VERTICES.map(|v| head[v]);
     let mid: [f64; 3] = std::array::from_fn(|k| 0.5 * (u[k] + l[k]));
     let mut normal = vec![[0.0f64; 3]; head.len()];

@@ -16,7 +16,7 @@ use serde_json::{json, Value};
 
 use crate::common::{assert_validator_clean, load_path, shared_asset};
 use crate::elastiface_common::*;
-use crate::elastiface_landmarks::{data, diagonal, run, world_mesh};
+use crate::elastiface_landmarks::{data, run, world_mesh};
 
 const HEAD: &str = "src_lee_perry_smith_head/LeePerrySmith_textured_derived.gltf";
 
