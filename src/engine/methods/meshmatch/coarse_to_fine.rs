@@ -16,6 +16,8 @@ use crate::engine::geometry::expmap::{ExpMap, RadiusUnit};
 use crate::engine::geometry::fans::{FanParams, FanSampler, Fans, FieldRef};
 use crate::engine::rng::{mix, SplitMix64};
 
+mod flips;
+
 use super::em::{
     fan_inside, ExampleMasks, IterationReport, LevelReport, Normalization, Shapes,
     MAX_CHART_VERTICES,
@@ -181,6 +183,7 @@ impl<'a> CoarseToFine<'a> {
         let sigma = self.schedule.sigma_at(level, self.levels - 1) * lv.radius;
         let mut colors = vote(&lv.stencil, &nnf, &patches, sigma, keep, None);
         let (iterations, converged) = self.iterate(&lv, &patches, sigma, &mut nnf, &mut colors)?;
+        let region_flips = self.flip_regions(&lv, &patches, sigma, &mut nnf, &mut colors)?;
         if level == 0 && params.nearest_neighbor_final {
             self.control.stage("nearest-neighbour colours", 0)?;
             colors = nearest_neighbour_colors(&nnf, &lv.centers, keep);
@@ -212,6 +215,7 @@ impl<'a> CoarseToFine<'a> {
             shape_weight: lv.weight,
             iterations,
             converged,
+            region_flips,
             usable_sources: lv
                 .allowed
                 .as_ref()
@@ -405,7 +409,7 @@ impl<'a> CoarseToFine<'a> {
     ) -> Result<(Vec<IterationReport>, bool), MeshMatchError> {
         let (params, control, seed) = (self.params, self.control, self.seed);
         let (level, nt, levels) = (lv.index, lv.nt, self.levels);
-        let (src_levels, tgt_levels) = (self.src, self.tgt);
+        let tgt_levels = self.tgt;
         let keep = lv.keep();
         let (labels, firsts) = components(tgt_levels.rings(level), nt);
         let mut rng = SplitMix64::new(mix(seed, 0x0bf5, level as u64));
@@ -427,63 +431,8 @@ impl<'a> CoarseToFine<'a> {
                 it + 1
             ));
             control.check()?;
-            let flat: Vec<f32> = colors.iter().flatten().copied().collect();
-            let tgt_fans = lv.tgt_sampler.sample(
-                FieldRef {
-                    dim: 3,
-                    values: &flat,
-                },
-                control,
-            )?;
-            control.stage("E-step", 0)?;
-            let tgt_ring_stats = tgt_fans.shape().ring_stats(&tgt_fans.data);
-            let ring_weights = if params.fan_area_weights {
-                tgt_fans.shape().area_ring_weights()
-            } else {
-                Vec::new()
-            };
-            let fan_len = lv.src_fans.shape().len() as f32;
-            let mut penalty = usage_penalty(
-                nnf,
-                lv.ns,
-                lv.allowed.as_deref(),
-                lv.fixed,
-                params.completeness_weight,
-                fan_len,
-            );
-            // Histogram cost: matches of source vertices whose colour the target's current
-            // (voted) colours over-represent cost more, so the matches themselves move to other
-            // source patches where the vote's histogram matching could only re-weight.
-            if let Some(cost) = HistogramBias::new(&lv.centers, colors, params.histogram_cost) {
-                penalty.resize(lv.ns, 0.0);
-                for (p, c) in penalty.iter_mut().zip(&lv.centers) {
-                    *p += fan_len * cost.excess(*c);
-                }
-            }
-            let step = EStep {
-                space: PatchSpace {
-                    fan: lv.src_fans.shape(),
-                    target_fans: &tgt_fans.data,
-                    source_fans: &lv.src_fans.data,
-                    target_shape: &lv.tgt_shape,
-                    source_shape: &lv.src_shape,
-                    shape_dim: self.shapes.dim,
-                    source_allowed: lv.allowed.as_deref(),
-                    exclude: None,
-                    source_penalty: &penalty,
-                    ring_weights: &ring_weights,
-                    target_ring_stats: &tgt_ring_stats,
-                    source_ring_stats: &lv.src_ring_stats,
-                },
-                target_adjacency: tgt_levels.rings(level),
-                source_adjacency: src_levels.rings(level),
-                source_hierarchy: &src_levels.hierarchy,
-                level,
-                whole_source_draws: level + 1 == levels,
-                randomized_rotations: params.randomized_rotations,
-                fixed: lv.fixed.filter(|_| lv.fixed_matches),
-                seed: mix(seed, level as u64, it as u64),
-            };
+            let inputs = self.step_inputs(lv, nnf, colors)?;
+            let step = self.e_step(lv, &inputs, mix(seed, level as u64, it as u64));
             step.refresh(nnf);
             control.check()?;
             let order = bfs_order(tgt_levels.rings(level), &labels, &mut starts);
@@ -507,6 +456,94 @@ impl<'a> CoarseToFine<'a> {
         }
         Ok((iterations, converged))
     }
+
+    /// What the E-step compares against: the target fans of `colors` with their ring
+    /// statistics, the ring weights and the per-source penalties (completeness and histogram
+    /// cost) of `nnf`.
+    fn step_inputs(
+        &self,
+        lv: &Level<'_>,
+        nnf: &Nnf,
+        colors: &[[f32; 3]],
+    ) -> Result<StepInputs, MeshMatchError> {
+        let params = self.params;
+        let flat: Vec<f32> = colors.iter().flatten().copied().collect();
+        let tgt_fans = lv.tgt_sampler.sample(
+            FieldRef {
+                dim: 3,
+                values: &flat,
+            },
+            self.control,
+        )?;
+        self.control.stage("E-step", 0)?;
+        let ring_stats = tgt_fans.shape().ring_stats(&tgt_fans.data);
+        let ring_weights = if params.fan_area_weights {
+            tgt_fans.shape().area_ring_weights()
+        } else {
+            Vec::new()
+        };
+        let fan_len = lv.src_fans.shape().len() as f32;
+        let mut penalty = usage_penalty(
+            nnf,
+            lv.ns,
+            lv.allowed.as_deref(),
+            lv.fixed,
+            params.completeness_weight,
+            fan_len,
+        );
+        // Histogram cost: matches of source vertices whose colour the target's current
+        // (voted) colours over-represent cost more, so the matches themselves move to other
+        // source patches where the vote's histogram matching could only re-weight.
+        if let Some(cost) = HistogramBias::new(&lv.centers, colors, params.histogram_cost) {
+            penalty.resize(lv.ns, 0.0);
+            for (p, c) in penalty.iter_mut().zip(&lv.centers) {
+                *p += fan_len * cost.excess(*c);
+            }
+        }
+        Ok(StepInputs {
+            fans: tgt_fans.data,
+            ring_stats,
+            ring_weights,
+            penalty,
+        })
+    }
+
+    /// The E-step of `lv` over `inputs`, seeded with `seed`.
+    fn e_step<'b>(&'b self, lv: &'b Level<'_>, inputs: &'b StepInputs, seed: u64) -> EStep<'b> {
+        let level = lv.index;
+        EStep {
+            space: PatchSpace {
+                fan: lv.src_fans.shape(),
+                target_fans: &inputs.fans,
+                source_fans: &lv.src_fans.data,
+                target_shape: &lv.tgt_shape,
+                source_shape: &lv.src_shape,
+                shape_dim: self.shapes.dim,
+                source_allowed: lv.allowed.as_deref(),
+                exclude: None,
+                source_penalty: &inputs.penalty,
+                ring_weights: &inputs.ring_weights,
+                target_ring_stats: &inputs.ring_stats,
+                source_ring_stats: &lv.src_ring_stats,
+            },
+            target_adjacency: self.tgt.rings(level),
+            source_adjacency: self.src.rings(level),
+            source_hierarchy: &self.src.hierarchy,
+            level,
+            whole_source_draws: level + 1 == self.levels,
+            randomized_rotations: self.params.randomized_rotations,
+            fixed: lv.fixed.filter(|_| lv.fixed_matches),
+            seed,
+        }
+    }
+}
+
+/// The target side of one E-step (see [`CoarseToFine::step_inputs`]).
+struct StepInputs {
+    fans: Vec<f32>,
+    ring_stats: Vec<f32>,
+    ring_weights: Vec<f32>,
+    penalty: Vec<f32>,
 }
 
 /// Shape weight of `level`: `shape_weight` on the coarsest level, `finest_shape_weight` on level 0,

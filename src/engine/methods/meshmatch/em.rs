@@ -151,6 +151,8 @@ pub struct LevelReport {
     pub iterations: Vec<IterationReport>,
     /// Whether the field stabilized before the iteration limit.
     pub converged: bool,
+    /// Coherent regions of the field re-grown from a neighbour (module `region_flip`).
+    pub region_flips: usize,
     /// By-example mode: source vertices matches may use on this level (whole fan painted).
     pub usable_sources: Option<usize>,
 }

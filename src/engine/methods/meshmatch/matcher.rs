@@ -277,7 +277,7 @@ pub struct EStep<'a> {
     pub seed: u64,
 }
 
-fn ring<'a>(adj: (&'a [u32], &'a [u32]), v: usize) -> &'a [u32] {
+pub(super) fn ring<'a>(adj: (&'a [u32], &'a [u32]), v: usize) -> &'a [u32] {
     &adj.1[adj.0[v] as usize..adj.0[v + 1] as usize]
 }
 

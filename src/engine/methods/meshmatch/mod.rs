@@ -32,6 +32,7 @@ pub mod histogram;
 pub mod levels;
 pub mod matcher;
 pub mod nnf_file;
+pub mod region_flip;
 pub mod run;
 pub mod sampling;
 pub mod scale;
@@ -295,6 +296,14 @@ pub struct MeshMatchParams {
     /// Search rotations around the propagated one instead of all `A` (Barnes et al. 2010).
     /// Default false (the paper's exhaustive search).
     pub randomized_rotations: bool,
+    /// Region flips (module `region_flip`, ours) on every level of at most this many target
+    /// vertices: each coherent region of the field smaller than half the level is re-grown from
+    /// its largest neighbour and kept so when the field's energy after an EM round is lower, so
+    /// that seams between equally good maps (a symmetric source's direct and mirrored copies)
+    /// do not survive into the finer levels. Default 2,048; 0 turns them off (README
+    /// "meshmatch", mirror-end seam).
+    #[schemars(range(max = 1_000_000))]
+    pub region_flip_vertices: usize,
     /// Weight each fan ring in the patch distance by the surface area its samples stand for
     /// (ring `i` of `R` at radius `(i + 1)·h` covers an annulus sector ∝ `i + 1`: weights
     /// `2(i + 1)/(R + 1)`, mean 1), so the distance is area-uniform over the fan's disc as the
@@ -362,6 +371,7 @@ impl Default for MeshMatchParams {
             finest_vote_sigma: None,
             nearest_neighbor_final: true,
             randomized_rotations: false,
+            region_flip_vertices: 2048,
             fan_area_weights: true,
             histogram_weight: None,
             histogram_cost: 0.0,
