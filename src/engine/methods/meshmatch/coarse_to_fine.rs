@@ -6,7 +6,10 @@
 //! (Figure 6, [`super::upsample`]); vote the target colours; iterate EM — E-step propagation and
 //! random search ([`super::matcher`]), M-step voting with the level's σ and histogram strength
 //! ([`super::vote`], [`super::vote_schedule`]) — until the field stabilizes or `iterations`
-//! passes ran. On the finest level the colours are finally copied from the matches
+//! passes ran. On the coarse levels (at most `region_flip_vertices` target vertices) the
+//! field's coherent regions are then re-grown from their neighbours and kept when the energy
+//! drops (region flips, ours: [`super::region_flip`], `flips`). On the finest level the colours
+//! are finally copied from the matches
 //! (nearest-neighbour reconstruction, §4.3) unless disabled, and fidelity is measured on request.
 //!
 //! The shape weight goes geometrically from `shape_weight` on the coarsest level to

@@ -110,7 +110,9 @@ pub fn largest_neighbour(g: &FlipGeometry<'_>, labels: &[u32], region: u32) -> O
         .map(|c| c.0)
 }
 
-/// Rings of `from` next to `region` whose matches the extension is fitted to.
+/// Rings of `from` next to `region` whose matches the extension is fitted to: deep enough that
+/// the band spans the surface in both directions (one ring of a cylinder lies in a plane), short
+/// enough that the fit stays local to the seam. Ours; not swept.
 const BAND_RINGS: usize = 4;
 
 /// `nnf` with the vertices of `region` re-grown from the region `from` (module docs).
