@@ -2,10 +2,13 @@
 //! [`super::BlobStore::put_file`] takes them, and where the file-system store writes a blob
 //! before renaming it into place.
 //!
-//! The folder is `<root>/tmp`. The first store to open it holds `<root>/tmp.lock` (an exclusive
-//! `flock`) for its life; a store that gets the lock knows every file already in the folder was
-//! left by a dead writer and removes them all, while a store opened beside a live one only
-//! removes files older than an hour. Shared by [`super::fs::FsBlobStore`] and
+//! The folder is `<root>/tmp`. Every store holds a shared `flock` on `<root>/tmp.lock` for its
+//! life. At open a store first tries the lock exclusively: when it gets it, no other store is
+//! using the folder, so every file already there was left by a dead writer and is removed (then
+//! the lock is turned shared); otherwise only files older than an hour are removed. (Holding the
+//! exclusive lock for life, as before, was wrong: once its holder died, the next store to open
+//! got the lock and removed the in-flight files of stores opened beside the dead one, a failure
+//! the three-replica kill test caught.) Shared by [`super::fs::FsBlobStore`] and
 //! [`super::object::ObjectBlobStore`] (whose spool is local even when its blobs are not).
 
 use std::fs::{self, File, OpenOptions};
@@ -29,18 +32,11 @@ pub struct Spool {
     _lock: Option<Arc<File>>,
 }
 
-/// Takes an exclusive, non-blocking `flock` on `path` (created if needed); `None` when another
-/// open file holds it.
-fn exclusive_lock(path: &Path) -> std::io::Result<Option<File>> {
+/// `flock(operation)` on `file`; whether it succeeded.
+fn flock(file: &File, operation: libc::c_int) -> bool {
     use std::os::fd::AsRawFd;
-    let file = OpenOptions::new()
-        .create(true)
-        .truncate(false)
-        .write(true)
-        .open(path)?;
-    // SAFETY: flock on a file descriptor this function owns; no memory is passed.
-    let rc = unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
-    Ok((rc == 0).then_some(file))
+    // SAFETY: flock on a file descriptor `file` owns; no memory is passed.
+    unsafe { libc::flock(file.as_raw_fd(), operation) == 0 }
 }
 
 /// Fsyncs a folder, making the entries added to or removed from it durable.
@@ -49,26 +45,37 @@ pub fn sync_dir(dir: &Path) -> std::io::Result<()> {
 }
 
 impl Spool {
-    /// Opens (creating) `<root>/tmp` and sweeps it: every file when this is the only store
-    /// using it, else those older than [`STALE_TEMP`]. `root` must exist.
+    /// Opens (creating) `<root>/tmp` and sweeps it: every file when no other store holds the
+    /// lock, else those older than [`STALE_TEMP`]; then holds the lock shared. `root` must
+    /// exist.
     ///
     /// # Errors
     /// [`StoreError::Io`] if the folder cannot be created.
     pub fn open(root: &Path) -> Result<Self, StoreError> {
         let dir = root.join("tmp");
         fs::create_dir_all(&dir)?;
-        let lock = exclusive_lock(&root.join("tmp.lock"))?;
+        let lock = OpenOptions::new()
+            .create(true)
+            .truncate(false)
+            .write(true)
+            .open(root.join("tmp.lock"))?;
         sync_dir(root)?;
-        let sole_user = lock.is_some();
+        let sole_user = flock(&lock, libc::LOCK_EX | libc::LOCK_NB);
         let spool = Self {
             dir,
-            _lock: lock.map(Arc::new),
+            _lock: Some(Arc::new(lock)),
         };
-        spool.sweep(if sole_user {
+        let swept = spool.sweep(if sole_user {
             Duration::ZERO
         } else {
             STALE_TEMP
-        })?;
+        });
+        // Shared from now on (converts the exclusive lock; waits only while another store
+        // sweeps at its own open).
+        if let Some(lock) = &spool._lock {
+            flock(lock, libc::LOCK_SH);
+        }
+        swept?;
         Ok(spool)
     }
 
@@ -121,5 +128,29 @@ impl Spool {
             }
         }
         Ok(removed)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A store opened after the first one has closed must not remove the in-flight files of a
+    /// store still open beside it (the lock's first holder is gone, but the folder is in use).
+    #[test]
+    fn a_store_opened_after_the_first_closes_keeps_the_live_stores_files() {
+        let root = tempfile::tempdir().unwrap();
+        let first = Spool::open(root.path()).unwrap();
+        let second = Spool::open(root.path()).unwrap();
+        let in_flight = second.new_temp();
+        fs::write(&in_flight, b"half a blob").unwrap();
+        drop(first);
+        let third = Spool::open(root.path()).unwrap();
+        assert!(in_flight.exists(), "the live store's temp file was swept");
+        drop((second, third));
+        // With every store closed, the next one removes what they left.
+        let fourth = Spool::open(root.path()).unwrap();
+        assert!(!in_flight.exists(), "a dead writer's temp file was kept");
+        drop(fourth);
     }
 }
