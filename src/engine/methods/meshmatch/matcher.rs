@@ -471,6 +471,17 @@ pub fn bfs_order(adjacency: (&[u32], &[u32]), component: &[u32], starts: &mut [u
 /// Connected components of a vertex graph: a label per vertex (numbered by lowest vertex) and the
 /// lowest vertex of each component.
 pub fn components(adjacency: (&[u32], &[u32]), n: usize) -> (Vec<u32>, Vec<u32>) {
+    components_where(adjacency, n, |_, _| true)
+}
+
+/// Connected components of the vertex graph restricted to the edges `(a, b)` for which
+/// `keep_edge(a, b)` holds: a label per vertex (numbered by lowest vertex) and the lowest vertex
+/// of each component.
+pub fn components_where(
+    adjacency: (&[u32], &[u32]),
+    n: usize,
+    keep_edge: impl Fn(usize, usize) -> bool,
+) -> (Vec<u32>, Vec<u32>) {
     let mut label = vec![u32::MAX; n];
     let mut firsts = Vec::new();
     let mut stack = Vec::new();
@@ -484,9 +495,10 @@ pub fn components(adjacency: (&[u32], &[u32]), n: usize) -> (Vec<u32>, Vec<u32>)
         stack.push(v);
         while let Some(x) = stack.pop() {
             for &nb in ring(adjacency, x) {
-                if label[nb as usize] == u32::MAX {
-                    label[nb as usize] = c;
-                    stack.push(nb as usize);
+                let nb = nb as usize;
+                if label[nb] == u32::MAX && keep_edge(x, nb) {
+                    label[nb] = c;
+                    stack.push(nb);
                 }
             }
         }

@@ -300,8 +300,10 @@ pub struct MeshMatchParams {
     /// vertices: each coherent region of the field smaller than half the level is re-grown from
     /// its largest neighbour and kept so when the field's energy after an EM round is lower, so
     /// that seams between equally good maps (a symmetric source's direct and mirrored copies)
-    /// do not survive into the finer levels. Default 2,048; 0 turns them off (README
-    /// "meshmatch", mirror-end seam).
+    /// do not survive into the finer levels. Default 600, the two coarsest levels (256-272
+    /// and 512-543 target vertices): deeper flips also remove the mirror seam on the stripe
+    /// cases but shrink Spot → cat's black patches on 4 seeds of 5; 0 turns them off (README
+    /// "meshmatch", region flips).
     #[schemars(range(max = 1_000_000))]
     pub region_flip_vertices: usize,
     /// Weight each fan ring in the patch distance by the surface area its samples stand for
@@ -371,7 +373,7 @@ impl Default for MeshMatchParams {
             finest_vote_sigma: None,
             nearest_neighbor_final: true,
             randomized_rotations: false,
-            region_flip_vertices: 2048,
+            region_flip_vertices: 600,
             fan_area_weights: true,
             histogram_weight: None,
             histogram_cost: 0.0,

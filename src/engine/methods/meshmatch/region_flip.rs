@@ -24,7 +24,7 @@
 
 use crate::engine::spatial::Bvh;
 
-use super::matcher::{ring, Nnf};
+use super::matcher::{components_where, ring, Nnf};
 
 /// Two target neighbours are in one region when their matches are closer than this many mean
 /// source edge lengths (a match moves by about one edge per target edge inside a coherent region;
@@ -50,40 +50,20 @@ pub struct FlipGeometry<'a> {
 
 /// The coherent regions of `nnf`: a label per target vertex and the size of every region.
 pub fn coherent_regions(g: &FlipGeometry<'_>, nnf: &Nnf) -> (Vec<u32>, Vec<usize>) {
-    let n = nnf.source.len();
     let limit2 = (COHERENT_EDGES * g.source_edge).powi(2);
-    let mut label = vec![u32::MAX; n];
-    let mut sizes = Vec::new();
-    let mut stack = Vec::new();
-    for v in 0..n {
-        if label[v] != u32::MAX {
-            continue;
-        }
-        let r = sizes.len() as u32;
-        label[v] = r;
-        stack.push(v);
-        let mut size = 0;
-        while let Some(x) = stack.pop() {
-            size += 1;
-            for &nb in ring(g.target_adjacency, x) {
-                let nb = nb as usize;
-                if label[nb] == u32::MAX && coherent(g, nnf, x, nb, limit2) {
-                    label[nb] = r;
-                    stack.push(nb);
-                }
-            }
-        }
-        sizes.push(size);
+    let coherent = |a: usize, b: usize| {
+        let (p, q) = (
+            g.source_positions[nnf.source[a] as usize],
+            g.source_positions[nnf.source[b] as usize],
+        );
+        (0..3).map(|i| (p[i] - q[i]).powi(2)).sum::<f32>() <= limit2
+    };
+    let (labels, firsts) = components_where(g.target_adjacency, nnf.source.len(), coherent);
+    let mut sizes = vec![0; firsts.len()];
+    for &l in &labels {
+        sizes[l as usize] += 1;
     }
-    (label, sizes)
-}
-
-fn coherent(g: &FlipGeometry<'_>, nnf: &Nnf, a: usize, b: usize, limit2: f32) -> bool {
-    let (p, q) = (
-        g.source_positions[nnf.source[a] as usize],
-        g.source_positions[nnf.source[b] as usize],
-    );
-    (0..3).map(|i| (p[i] - q[i]).powi(2)).sum::<f32>() <= limit2
+    (labels, sizes)
 }
 
 /// The region bordering `region` along the most target edges, if any.
