@@ -52,9 +52,7 @@ impl CoarseToFine<'_> {
                 continue;
             };
             let mut candidate = regrow(&geometry, nnf, &labels, region, from);
-            let mut settled = self
-                .field_energy(lv, patches, sigma, &candidate, colors)?
-                .colors;
+            let mut settled = self.vote_from(lv, patches, sigma, &candidate, colors);
             self.iterate(lv, patches, sigma, &mut candidate, &mut settled)?;
             let tried = self.field_energy(lv, patches, sigma, &candidate, &settled)?;
             if tried.energy < current.energy {
@@ -84,8 +82,7 @@ impl CoarseToFine<'_> {
         nnf: &Nnf,
         colors: &[[f32; 3]],
     ) -> Result<FieldEnergy, MeshMatchError> {
-        let bias = HistogramBias::new(&lv.centers, colors, self.schedule.histogram_weight);
-        let voted = vote(&lv.stencil, nnf, patches, sigma, lv.keep(), bias.as_ref());
+        let voted = self.vote_from(lv, patches, sigma, nnf, colors);
         let inputs = self.step_inputs(lv, nnf, &voted)?;
         let step = self.e_step(lv, &inputs, mix(self.seed, 0xf11b, lv.index as u64));
         let mut refreshed = nnf.clone();
@@ -95,6 +92,19 @@ impl CoarseToFine<'_> {
             colors: voted,
             distance: refreshed.distance,
         })
+    }
+
+    /// The colours voted from `nnf`, with the histogram bias of the current `colors`.
+    fn vote_from(
+        &self,
+        lv: &Level<'_>,
+        patches: &SourcePatches<'_>,
+        sigma: f32,
+        nnf: &Nnf,
+        colors: &[[f32; 3]],
+    ) -> Vec<[f32; 3]> {
+        let bias = HistogramBias::new(&lv.centers, colors, self.schedule.histogram_weight);
+        vote(&lv.stencil, nnf, patches, sigma, lv.keep(), bias.as_ref())
     }
 }
 
