@@ -55,6 +55,7 @@ mod meshmatch_defects;
 mod meshmatch_features;
 mod meshmatch_param_sweep;
 mod meshmatch_real_pairs;
+mod meshmatch_restarts;
 mod meshmatch_scale;
 mod meshmatch_statistics;
 mod meshmatch_stretch_period;

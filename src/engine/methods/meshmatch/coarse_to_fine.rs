@@ -8,7 +8,8 @@
 //! ([`super::vote`], [`super::vote_schedule`]) — until the field stabilizes or `iterations`
 //! passes ran. On the coarse levels (at most `region_flip_vertices` target vertices) the
 //! field's coherent regions are then re-grown from their neighbours and kept when the energy
-//! drops (region flips, ours: [`super::region_flip`], `flips`). On the finest level the colours
+//! drops (region flips, ours: [`super::region_flip`], `flips`). The coarsest level's EM runs
+//! from `coarsest_restarts` random fields and keeps the lowest-energy one (ours, `restarts`). On the finest level the colours
 //! are finally copied from the matches
 //! (nearest-neighbour reconstruction, §4.3) unless disabled, and fidelity is measured on request.
 //!
@@ -20,6 +21,7 @@ use crate::engine::geometry::fans::{FanParams, FanSampler, Fans, FieldRef};
 use crate::engine::rng::{mix, SplitMix64};
 
 mod flips;
+mod restarts;
 
 use super::em::{
     fan_inside, ExampleMasks, IterationReport, LevelReport, Normalization, Shapes,
@@ -34,6 +36,7 @@ use super::vote::{nearest_neighbour_colors, vote, SourcePatches, VoteStencil};
 use super::vote_schedule::{geometric_at, VoteSchedule};
 use super::{MeshMatchError, MeshMatchParams};
 use crate::engine::control::Control;
+use restarts::Start;
 
 /// What every level of the coarse-to-fine loop reads.
 pub(super) struct CoarseToFine<'a> {
@@ -166,15 +169,6 @@ impl<'a> CoarseToFine<'a> {
         self.control.stage("prepare", 0)?;
         let lv = self.prepare(level)?;
         self.control.stage("initial field and vote", 0)?;
-        let mut nnf = self.initial_field(&lv, &coarser)?;
-        if let Some(f) = lv.fixed.filter(|_| lv.fixed_matches) {
-            for (t, &is_fixed) in f.iter().enumerate() {
-                if is_fixed {
-                    nnf.source[t] = t as u32;
-                    nnf.rotation[t] = 0;
-                }
-            }
-        }
         let patches = SourcePatches {
             rings: params.rings,
             spokes: params.spokes,
@@ -184,8 +178,13 @@ impl<'a> CoarseToFine<'a> {
         };
         let keep = lv.keep();
         let sigma = self.schedule.sigma_at(level, self.levels - 1) * lv.radius;
-        let mut colors = vote(&lv.stencil, &nnf, &patches, sigma, keep, None);
-        let (iterations, converged) = self.iterate(&lv, &patches, sigma, &mut nnf, &mut colors)?;
+        let Start {
+            mut nnf,
+            mut colors,
+            iterations,
+            converged,
+            restart_energies,
+        } = self.start(&lv, &coarser, &patches, sigma)?;
         let region_flips = self.flip_regions(&lv, &patches, sigma, &mut nnf, &mut colors)?;
         if level == 0 && params.nearest_neighbor_final {
             self.control.stage("nearest-neighbour colours", 0)?;
@@ -219,6 +218,7 @@ impl<'a> CoarseToFine<'a> {
             iterations,
             converged,
             region_flips,
+            restart_energies,
             usable_sources: lv
                 .allowed
                 .as_ref()
@@ -353,7 +353,12 @@ impl<'a> CoarseToFine<'a> {
 
     /// The field to start `lv` from: random on the coarsest level, else upsampled from the
     /// `coarser` level's field.
-    fn initial_field(&self, lv: &Level<'_>, coarser: &Nnf) -> Result<Nnf, MeshMatchError> {
+    fn initial_field(
+        &self,
+        lv: &Level<'_>,
+        coarser: &Nnf,
+        restart: u64,
+    ) -> Result<Nnf, MeshMatchError> {
         let (level, ns, nt) = (lv.index, lv.ns, lv.nt);
         if level == self.levels - 1 {
             let pool: Vec<u32> = (0..ns as u32)
@@ -367,7 +372,11 @@ impl<'a> CoarseToFine<'a> {
                     ),
                 });
             }
-            let mut rng = SplitMix64::new(mix(self.seed, 0xC0A5, level as u64));
+            let first = mix(self.seed, 0xC0A5, level as u64);
+            let mut rng = SplitMix64::new(match restart {
+                0 => first,
+                r => mix(first, 0x5EED, r),
+            });
             Ok(Nnf {
                 source: (0..nt)
                     .map(|_| pool[rng.below(pool.len() as u64) as usize])

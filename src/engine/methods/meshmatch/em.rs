@@ -153,6 +153,9 @@ pub struct LevelReport {
     pub converged: bool,
     /// Coherent regions of the field re-grown from a neighbour (module `region_flip`).
     pub region_flips: usize,
+    /// The coarsest level with `coarsest_restarts` > 1: the final EM energy of every random
+    /// start, in order (the lowest was kept); empty otherwise.
+    pub restart_energies: Vec<f64>,
     /// By-example mode: source vertices matches may use on this level (whole fan painted).
     pub usable_sources: Option<usize>,
 }

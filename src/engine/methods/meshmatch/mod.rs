@@ -306,6 +306,14 @@ pub struct MeshMatchParams {
     /// "meshmatch", region flips).
     #[schemars(range(max = 1_000_000))]
     pub region_flip_vertices: usize,
+    /// Random starts of the coarsest level (module `coarse_to_fine::restarts`, ours): the
+    /// coarsest level's EM runs from this many random fields and the one with the lowest final
+    /// energy is kept, so that one unlucky start does not settle the whole synthesis in a poor
+    /// basin. Default 1, the paper's single random start; 4 is the setting for organic pairs
+    /// without correspondences, where it fixed the one miss of the real pairs' statistics, but it
+    /// costs the symmetric stripe cases (README "meshmatch", coarsest restarts).
+    #[schemars(range(min = 1, max = 64))]
+    pub coarsest_restarts: usize,
     /// Weight each fan ring in the patch distance by the surface area its samples stand for
     /// (ring `i` of `R` at radius `(i + 1)·h` covers an annulus sector ∝ `i + 1`: weights
     /// `2(i + 1)/(R + 1)`, mean 1), so the distance is area-uniform over the fan's disc as the
@@ -374,6 +382,7 @@ impl Default for MeshMatchParams {
             nearest_neighbor_final: true,
             randomized_rotations: false,
             region_flip_vertices: 600,
+            coarsest_restarts: 1,
             fan_area_weights: true,
             histogram_weight: None,
             histogram_cost: 0.0,
