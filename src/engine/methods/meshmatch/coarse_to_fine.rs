@@ -9,9 +9,9 @@
 //! passes ran. On the coarse levels (at most `region_flip_vertices` target vertices) the
 //! field's coherent regions are then re-grown from their neighbours and kept when the energy
 //! drops (region flips, ours: [`super::region_flip`], `flips`). The coarsest level's EM runs
-//! from `coarsest_restarts` random fields and keeps the lowest-energy one (ours, `restarts`). On the finest level the colours
-//! are finally copied from the matches
-//! (nearest-neighbour reconstruction, §4.3) unless disabled, and fidelity is measured on request.
+//! from `coarsest_restarts` random fields and keeps the lowest-energy one (ours, `restarts`).
+//! On the finest level the colours are finally copied from the matches (nearest-neighbour
+//! reconstruction, §4.3) unless disabled, and fidelity is measured on request.
 //!
 //! The shape weight goes geometrically from `shape_weight` on the coarsest level to
 //! `finest_shape_weight` on the finest (§5.2: "lower shape weighting at finer scales").
@@ -351,7 +351,8 @@ impl<'a> CoarseToFine<'a> {
         Ok((Some(painted.to_vec()), Some(warning)))
     }
 
-    /// The field to start `lv` from: random on the coarsest level, else upsampled from the
+    /// The field to start `lv` from: random on the coarsest level (`restart` 0 is the single
+    /// start of the paper; each other value draws another field), else upsampled from the
     /// `coarser` level's field.
     fn initial_field(
         &self,
