@@ -396,16 +396,22 @@ pub struct UpdatePair {
     pub unmoved: Vec<usize>,
 }
 
-/// Builds the [`UpdatePair`] for a cylinder of `length`.
-pub fn update_pair(length: f32) -> UpdatePair {
-    let (sp, st) = capsule(0.5, &profile(0.0, length, 0.05), 64, |x| x);
-    let colors: Vec<[f32; 4]> = sp
+/// Opaque vertex colours of the striped source at `positions`: [`update_stripe`] along x, the
+/// source of the texture-update, stretch-period and restart cases.
+pub fn stripe_colors(positions: &[[f32; 3]]) -> Vec<[f32; 4]> {
+    positions
         .iter()
         .map(|p| {
             let g = update_stripe(p[0]);
             [g, g, g, 1.0]
         })
-        .collect();
+        .collect()
+}
+
+/// Builds the [`UpdatePair`] for a cylinder of `length`.
+pub fn update_pair(length: f32) -> UpdatePair {
+    let (sp, st) = capsule(0.5, &profile(0.0, length, 0.05), 64, |x| x);
+    let colors = stripe_colors(&sp);
     let (tp, tt) = capsule(0.5, &profile(0.0, length, 0.025), 64, |x| {
         lengthen(x, length)
     });

@@ -5,11 +5,12 @@
 //! source's (k-means k = 5 in sRGB on area-uniform samples; TV and the worst ratio of a ≥ 5%
 //! cluster), the figures of the README's sweep table. `RETEX_MESHMATCH_SWEEP` replaces the
 //! default sets with a JSON array of `params` objects; `RETEX_MESHMATCH_SWEEP_CORR=1` adds the
-//! pairs' hand-placed correspondences (`meshmatch_real_pairs`) to every run.
+//! pairs' hand-placed correspondences (`meshmatch_real_pairs`) to every run; `RETEX_MESHMATCH_SWEEP_SEEDS` replaces the seeds (a JSON
+//! array, default `[1, 2]`).
 
 use crate::common::load_bytes;
-use crate::meshmatch_common::{color_statistics, run_bytes};
-use crate::meshmatch_real_pairs::{pair_correspondences, PAIRS};
+use crate::meshmatch_common::color_statistics;
+use crate::meshmatch_real_pairs::{pair_correspondences, run_pair, PAIRS};
 use crate::meshmatch_transfer::shared_bytes;
 
 #[test]
@@ -24,6 +25,10 @@ fn bench_meshmatch_param_sweep() {
         .unwrap(),
     };
     let with_correspondences = std::env::var("RETEX_MESHMATCH_SWEEP_CORR").is_ok_and(|v| v == "1");
+    let seeds: Vec<u64> = match std::env::var("RETEX_MESHMATCH_SWEEP_SEEDS") {
+        Ok(text) => serde_json::from_str(&text).expect("RETEX_MESHMATCH_SWEEP_SEEDS: a JSON array"),
+        Err(_) => vec![1, 2],
+    };
     for (src, tgt, name) in PAIRS {
         let corr = if with_correspondences {
             match pair_correspondences(name) {
@@ -37,19 +42,8 @@ fn bench_meshmatch_param_sweep() {
         let (tn, tb) = shared_bytes(tgt);
         let source = load_bytes(&sb, &sn);
         for set in &sets {
-            for seed in [1u64, 2] {
-                let mut params = serde_json::json!({"samples": 16384});
-                for (k, v) in set.as_object().unwrap() {
-                    params[k] = v.clone();
-                }
-                let out = run_bytes(
-                    (&sn, sb.clone()),
-                    (&tn, tb.clone()),
-                    serde_json::json!({"version": 1, "method": "meshmatch", "seed": seed,
-                        "correspondences": corr,
-                        "output": {"texture_size": 512, "padding": 4, "uv": "keep"},
-                        "params": params}),
-                );
+            for &seed in &seeds {
+                let out = run_pair((&sn, &sb), (&tn, &tb), &corr, set, seed);
                 let stats = color_statistics(&source, &load_bytes(&out.model, "out.glb"));
                 println!(
                     "SWEEP {name}{} {set} seed {seed}: TV {:.3} worst {:.2} kept {} | {stats}",
@@ -60,5 +54,25 @@ fn bench_meshmatch_param_sweep() {
                 );
             }
         }
+    }
+}
+
+/// Scores output files made elsewhere (e.g. by the CLI): `RETEX_SCORE_FILES` is a JSON array of
+/// `[source, output]` path pairs; prints each output's colour statistics against its source.
+#[test]
+#[ignore = "tool: scores files named in RETEX_SCORE_FILES"]
+fn score_meshmatch_outputs() {
+    let text = std::env::var("RETEX_SCORE_FILES").expect("RETEX_SCORE_FILES: [[source, output]]");
+    let pairs: Vec<(String, String)> = serde_json::from_str(&text).expect("a JSON array of pairs");
+    assert!(!pairs.is_empty(), "RETEX_SCORE_FILES names no files");
+    for (source, output) in pairs {
+        let read = |p: &str| load_bytes(&std::fs::read(p).expect(p), p);
+        let stats = color_statistics(&read(&source), &read(&output));
+        println!(
+            "SCORE {output}: TV {:.3} worst {:.2} kept {}",
+            stats.tv,
+            stats.worst_ratio,
+            stats.kept()
+        );
     }
 }

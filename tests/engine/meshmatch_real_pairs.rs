@@ -9,6 +9,7 @@
 use crate::common::{assert_validator_clean, load_bytes};
 use crate::meshmatch_common::{color_statistics, run_bytes};
 use crate::meshmatch_transfer::shared_bytes;
+use retex::engine::pipeline::TransferOutput;
 
 /// The real pairs: (source, target, name), paths under the shared assets.
 pub const PAIRS: [(&str, &str, &str); 3] = [
@@ -78,6 +79,29 @@ pub fn pair_correspondences(name: &str) -> Option<serde_json::Value> {
     ))
 }
 
+/// One real-pair transfer as the statistics tests and the parameter sweep run it: 16K samples,
+/// `params` over the defaults, `corr` the correspondences, a 512² texture in the target's UVs.
+pub fn run_pair(
+    source: (&str, &[u8]),
+    target: (&str, &[u8]),
+    corr: &serde_json::Value,
+    params: &serde_json::Value,
+    seed: u64,
+) -> TransferOutput {
+    let mut p = serde_json::json!({"samples": 16384});
+    for (k, v) in params.as_object().unwrap() {
+        p[k] = v.clone();
+    }
+    run_bytes(
+        (source.0, source.1.to_vec()),
+        (target.0, target.1.to_vec()),
+        serde_json::json!({"version": 1, "method": "meshmatch", "seed": seed,
+            "correspondences": corr,
+            "output": {"texture_size": 512, "padding": 4, "uv": "keep"},
+            "params": p}),
+    )
+}
+
 /// Runs every pair at 16K samples on each of `seeds`, with `params` and the pair's landmarks
 /// when `with_correspondences`, and asserts the statistics targets (TV ≤ 0.12, every
 /// ≥ 5% cluster within 0.5-2×) on the output file.
@@ -94,21 +118,10 @@ fn assert_pairs_keep_the_statistics(
         } else {
             serde_json::json!([])
         };
-        let mut p = serde_json::json!({"samples": 16384});
-        for (k, v) in params.as_object().unwrap() {
-            p[k] = v.clone();
-        }
         let (sn, sb) = shared_bytes(src);
         let (tn, tb) = shared_bytes(tgt);
         for &seed in seeds {
-            let out = run_bytes(
-                (&sn, sb.clone()),
-                (&tn, tb.clone()),
-                serde_json::json!({"version": 1, "method": "meshmatch", "seed": seed,
-                    "correspondences": corr,
-                    "output": {"texture_size": 512, "padding": 4, "uv": "keep"},
-                    "params": p}),
-            );
+            let out = run_pair((&sn, &sb), (&tn, &tb), &corr, &params, seed);
             let file = format!("meshmatch_{label}_{}_{seed}.glb", name.replace('→', "_"));
             assert_validator_clean(&out.model, &file);
             let stats = color_statistics(&load_bytes(&sb, &sn), &load_bytes(&out.model, &file));

@@ -22,7 +22,7 @@
 //! (`hks.clamp_to_source` false: the bar's seed 3 swirls, rings 0.891).
 
 use crate::meshmatch_common::{
-    capsule, colored_points, glb_of, profile, run_bytes, update_stripe, UPDATE_PERIOD,
+    capsule, colored_points, glb_of, profile, run_bytes, stripe_colors, UPDATE_PERIOD,
 };
 
 /// The source's stripes: those of the texture-update case (period 0.5).
@@ -165,13 +165,7 @@ fn source_and_target(shape: &str) -> (Vec<u8>, Vec<u8>) {
         _ => bar(warp),
     };
     let (sp, sf) = make(|x| x);
-    let colors: Vec<[f32; 4]> = sp
-        .iter()
-        .map(|p| {
-            let g = update_stripe(p[0]);
-            [g, g, g, 1.0]
-        })
-        .collect();
+    let colors = stripe_colors(&sp);
     let (tp, tf) = make(stretch);
     (glb_of(&sp, &sf, Some(&colors)), glb_of(&tp, &tf, None))
 }
