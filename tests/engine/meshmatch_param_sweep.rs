@@ -60,8 +60,8 @@ fn bench_meshmatch_param_sweep() {
 /// Scores output files made elsewhere (e.g. by the CLI): `RETEX_SCORE_FILES` is a JSON array of
 /// `[source, output]` path pairs; prints each output's colour statistics against its source.
 #[test]
-#[ignore = "tool: scores files named in RETEX_SCORE_FILES"]
-fn score_meshmatch_outputs() {
+#[ignore = "benchmark tool: scores the files named in RETEX_SCORE_FILES"]
+fn bench_score_meshmatch_outputs() {
     let text = std::env::var("RETEX_SCORE_FILES").expect("RETEX_SCORE_FILES: [[source, output]]");
     let pairs: Vec<(String, String)> = serde_json::from_str(&text).expect("a JSON array of pairs");
     assert!(!pairs.is_empty(), "RETEX_SCORE_FILES names no files");
