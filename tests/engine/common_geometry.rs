@@ -1,6 +1,6 @@
 //! Helpers for the geometry tests: a minimal OBJ reader (positions and faces only) and a `.npy`
 //! writer for exporting results to the libigl cross-check (`scripts/crosscheck_libigl.py`), and
-//! face orientation for the star-shaped test shapes.
+//! face orientation for the star-shaped test shapes, and the stretch of the stretched capsules.
 
 use std::io::Write;
 use std::path::Path;
@@ -203,5 +203,15 @@ pub fn orient_outward(positions: &[[f32; 3]], faces: &mut [[u32; 3]]) {
         if a[0] * bc[0] + a[1] * bc[1] + a[2] * bc[2] < 0.0 {
             f.swap(1, 2);
         }
+    }
+}
+
+/// The axial warp of the stretched capsules (meshmatch's stripe and scale tests, detail's ring
+/// test): x ≤ 2 stays, the part beyond x = 2 is stretched 2× (x = 4 goes to 6).
+pub fn stretch_beyond_two(x: f32) -> f32 {
+    if x <= 2.0 {
+        x
+    } else {
+        2.0 + 2.0 * (x - 2.0)
     }
 }

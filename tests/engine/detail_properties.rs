@@ -10,7 +10,7 @@ use retex::engine::methods::detail::params::DetailParams;
 use retex::engine::methods::detail::pipeline::{transfer_detail, DetailTransfer};
 use retex::engine::spatial::Bvh;
 
-use crate::common_geometry::jittered_sphere;
+use crate::common_geometry::{jittered_sphere, stretch_beyond_two};
 
 const RADIUS: f32 = 0.5;
 
@@ -100,8 +100,7 @@ fn rings_keep_their_world_wavelength_on_a_target_stretched_twice() {
     let (detailed, base) = ringed_capsule();
     // The target: the same capsule, its right half (x > 2) stretched 2× (x ∈ [0, 6]).
     let profile: Vec<f32> = (0..=100).map(|i| 4.0 * i as f32 / 100.0).collect();
-    let warp = |x: f32| if x < 2.0 { x } else { 2.0 + 2.0 * (x - 2.0) };
-    let target = capsule(RADIUS, &profile, 80, warp);
+    let target = capsule(RADIUS, &profile, 80, stretch_beyond_two);
     let out = transfer_detail(
         &detailed,
         Some(&base),

@@ -4,6 +4,7 @@
 //! lowest, and its first start is the single start of `coarsest_restarts` 1. The quality effect is
 //! tested on the real pairs (`meshmatch_real_pairs`: Blub → fish seed 4).
 
+use crate::common_geometry::stretch_beyond_two;
 use crate::meshmatch_common::{capsule, glb_of, profile, run_bytes, stripe_colors};
 
 /// The coarsest level's report of a transfer with `restarts` starts and seed `seed`.
@@ -11,7 +12,7 @@ fn coarsest_level(restarts: usize, seed: u64) -> serde_json::Value {
     let make = |warp: fn(f32) -> f32| capsule(0.5, &profile(0.0, 4.0, 4.0 / 64.0), 48, warp);
     let (sp, sf) = make(|x| x);
     let colors = stripe_colors(&sp);
-    let (tp, tf) = make(|x| if x > 2.0 { 2.0 + 2.0 * (x - 2.0) } else { x });
+    let (tp, tf) = make(stretch_beyond_two);
     let out = run_bytes(
         ("source.glb", glb_of(&sp, &sf, Some(&colors))),
         ("target.glb", glb_of(&tp, &tf, None)),

@@ -4,6 +4,7 @@
 //! `match_area` (the old default) scales a stretched target's pattern up by √(area ratio).
 //! Read from the report's `source_scale` of whole transfers.
 
+use crate::common_geometry::stretch_beyond_two;
 use crate::meshmatch_common::{capsule, glb_of, run_bytes};
 
 fn source_scale(source: &[u8], target: &[u8], scale: &str) -> f64 {
@@ -34,13 +35,7 @@ fn extents_scale_keeps_units_on_a_stretch_and_follows_a_uniform_resize() {
         .collect();
     let source = glb_of(&sp, &st, Some(&colors));
     // The far half stretched 2×: length 5 → 7 with the caps, area × about 1.4.
-    let (tp, tt) = capsule(0.5, &profile, 48, |x| {
-        if x <= 2.0 {
-            x
-        } else {
-            2.0 + 2.0 * (x - 2.0)
-        }
-    });
+    let (tp, tt) = capsule(0.5, &profile, 48, stretch_beyond_two);
     let stretched = glb_of(&tp, &tt, None);
     let extents = source_scale(&source, &stretched, "match_extents");
     let area = source_scale(&source, &stretched, "match_area");

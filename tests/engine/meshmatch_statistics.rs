@@ -4,6 +4,7 @@
 //! it on a synthetic pair where a constant or a copy-free result fails.
 
 use crate::common::{assert_validator_clean, load_bytes};
+use crate::common_geometry::stretch_beyond_two;
 use crate::meshmatch_common::{
     capsule, color_statistics, glb_of, run_bytes, statistics_of_samples,
 };
@@ -59,8 +60,7 @@ fn meshmatch_keeps_the_colour_statistics_of_bands() {
     let (sp, st) = capsule(0.5, &profile(0.05), 48, |x| x);
     let colors: Vec<[f32; 4]> = sp.iter().map(|p| band(p[0])).collect();
     let source = glb_of(&sp, &st, Some(&colors));
-    let warp = |x: f32| if x <= 2.0 { x } else { 2.0 + 2.0 * (x - 2.0) };
-    let (tp, tt) = capsule(0.5, &profile(0.03), 48, warp);
+    let (tp, tt) = capsule(0.5, &profile(0.03), 48, stretch_beyond_two);
     let target = glb_of(&tp, &tt, None);
     let source_asset = load_bytes(&source, "source.glb");
     for seed in 1..=3u64 {

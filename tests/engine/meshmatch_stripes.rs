@@ -9,6 +9,7 @@
 //! similarity fitted to the same correspondences) stretches it by about 2×.
 
 use crate::common;
+use crate::common_geometry::stretch_beyond_two;
 
 use crate::meshmatch_common::{
     capsule, colored_points, glb_of, measured_period, profile, run_bytes,
@@ -30,10 +31,8 @@ fn stripe(x: f32) -> f32 {
 }
 
 fn warp(x: f32) -> f32 {
-    if x <= 2.0 {
-        x
-    } else if x <= 4.0 {
-        2.0 + 2.0 * (x - 2.0)
+    if x <= 4.0 {
+        stretch_beyond_two(x)
     } else {
         x + 2.0
     }
