@@ -1,6 +1,6 @@
-//! Helpers for the geometry tests: a minimal OBJ reader (positions and faces only) and a `.npy`
-//! writer for exporting results to the libigl cross-check (`scripts/crosscheck_libigl.py`), and
-//! face orientation for the star-shaped test shapes, and the stretch of the stretched capsules.
+//! Helpers for the geometry tests: a minimal OBJ reader (positions and faces only), a `.npy`
+//! writer for exporting results to the libigl cross-check (`scripts/crosscheck_libigl.py`), face
+//! orientation for the star-shaped test shapes, and the axial warp of the stretched capsules.
 
 use std::io::Write;
 use std::path::Path;

@@ -5,8 +5,8 @@
 //! source's (k-means k = 5 in sRGB on area-uniform samples; TV and the worst ratio of a ≥ 5%
 //! cluster), the figures of the README's sweep table. `RETEX_MESHMATCH_SWEEP` replaces the
 //! default sets with a JSON array of `params` objects; `RETEX_MESHMATCH_SWEEP_CORR=1` adds the
-//! pairs' hand-placed correspondences (`meshmatch_real_pairs`) to every run; `RETEX_MESHMATCH_SWEEP_SEEDS` replaces the seeds (a JSON
-//! array, default `[1, 2]`).
+//! pairs' hand-placed correspondences (`meshmatch_real_pairs`) to every run;
+//! `RETEX_MESHMATCH_SWEEP_SEEDS` replaces the seeds (a JSON array, default `[1, 2]`).
 
 use crate::common::load_bytes;
 use crate::meshmatch_common::color_statistics;
