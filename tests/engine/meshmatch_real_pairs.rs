@@ -143,7 +143,10 @@ fn assert_pairs_keep_the_statistics(
 #[test]
 #[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
 fn real_pairs_with_correspondences_keep_the_source_statistics() {
-    assert_pairs_keep_the_statistics(true, serde_json::json!({}), "corr", &[1]);
+    // SWEEP-TEMP
+    let seeds: Vec<u64> = std::env::var("SEEDS").map_or(vec![1], |v| v.split(',').map(|x| x.parse().unwrap()).collect());
+    let params: serde_json::Value = std::env::var("MMP").map_or(serde_json::json!({}), |v| serde_json::from_str(&v).unwrap());
+    assert_pairs_keep_the_statistics(true, params, "corr", &seeds);
 }
 
 /// Without correspondences, at the defaults (HKS features in the source's unit, times up to a
