@@ -143,10 +143,7 @@ fn assert_pairs_keep_the_statistics(
 #[test]
 #[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
 fn real_pairs_with_correspondences_keep_the_source_statistics() {
-    // SWEEP-TEMP
-    let seeds: Vec<u64> = std::env::var("SEEDS").map_or(vec![1], |v| v.split(',').map(|x| x.parse().unwrap()).collect());
-    let params: serde_json::Value = std::env::var("MMP").map_or(serde_json::json!({}), |v| serde_json::from_str(&v).unwrap());
-    assert_pairs_keep_the_statistics(true, params, "corr", &seeds);
+    assert_pairs_keep_the_statistics(true, serde_json::json!({}), "corr", &[1]);
 }
 
 /// Without correspondences, at the defaults (HKS features in the source's unit, times up to a
@@ -180,15 +177,23 @@ fn real_pairs_with_coarsest_restarts_keep_the_source_statistics() {
     );
 }
 
-/// The E-step's histogram cost at 0.1 (an option: it makes the stripe cases' rings uneven,
-/// README) also meets the targets on all three pairs (seed 1: 0.075 / 1.46, 0.030 / 1.70, 0.058 / 1.30).
+/// The E-step's histogram cost at 0.1 with four coarsest starts (two options; together they
+/// bend the stripe cases' rings: 22 of 30 runs in bounds against the defaults' 29, README "Both
+/// options for organic pairs"). Over seeds 1-30 they meet the targets on 89 of 90 runs without
+/// correspondences (the defaults: 74; the one miss is Spot → cat's seed 3, an orange ring on
+/// the cat's tail) and 89 of 90 with the landmarks (the defaults: 85). Seeds 4 and 7 are where
+/// the defaults miss (Blub → fish seed 4: an orange face, TV 0.127; Spot → cat seed 7: the
+/// black patches shrink to dots) and so do four restarts alone on seed 7 (worst ratio 8.69).
+/// Seeds 1, 4, 7, "TV / worst ratio": Spot → cat 0.057 / 1.26, 0.051 / 1.31, 0.061 / 1.36;
+/// Blub → fish 0.022 / 1.68, 0.021 / 1.63, 0.027 / 1.57; Fox → koala 0.061 / 1.35,
+/// 0.079 / 1.52, 0.078 / 1.49.
 #[test]
 #[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
-fn real_pairs_with_the_histogram_cost_keep_the_source_statistics() {
+fn real_pairs_with_the_histogram_cost_and_restarts_keep_the_source_statistics() {
     assert_pairs_keep_the_statistics(
         false,
-        serde_json::json!({"histogram_cost": 0.1}),
+        serde_json::json!({"histogram_cost": 0.1, "coarsest_restarts": 4}),
         "hcost",
-        &[1],
+        &[1, 4, 7],
     );
 }
