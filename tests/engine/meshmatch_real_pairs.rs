@@ -183,7 +183,7 @@ fn real_pairs_with_coarsest_restarts_keep_the_source_statistics() {
 /// correspondences (the defaults: 74; the one miss is Spot → cat's seed 3, an orange ring on
 /// the cat's tail) and 89 of 90 with the landmarks (the defaults: 85). Seeds 4 and 7 are where
 /// the defaults miss (Blub → fish seed 4: an orange face, TV 0.127; Spot → cat seed 7: the
-/// black patches shrink to dots) and so do four restarts alone on seed 7 (worst ratio 8.69).
+/// black patches shrink to dots); four restarts alone miss on seed 7 too (worst ratio 8.69).
 /// Seeds 1, 4, 7, "TV / worst ratio": Spot → cat 0.057 / 1.26, 0.051 / 1.31, 0.061 / 1.36;
 /// Blub → fish 0.022 / 1.68, 0.021 / 1.63, 0.027 / 1.57; Fox → koala 0.061 / 1.35,
 /// 0.079 / 1.52, 0.078 / 1.49.
