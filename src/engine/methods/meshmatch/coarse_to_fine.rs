@@ -10,6 +10,8 @@
 //! field's coherent regions are then re-grown from their neighbours and kept when the energy
 //! drops (region flips, ours: [`super::region_flip`], `flips`). The coarsest level's EM runs
 //! from `coarsest_restarts` random fields and keeps the lowest-energy one (ours, `restarts`).
+//! Every E-step adds the finest-colour histogram cost of the current field (ours,
+//! [`super::fine_histogram`]); the region flips compare fields without it.
 //! On the finest level the colours are finally copied from the matches (nearest-neighbour
 //! reconstruction, §4.3) unless disabled, and fidelity is measured on request.
 //!
@@ -444,7 +446,7 @@ impl<'a> CoarseToFine<'a> {
                 it + 1
             ));
             control.check()?;
-            let inputs = self.step_inputs(lv, nnf, colors)?;
+            let inputs = self.step_inputs(lv, nnf, colors, true)?;
             let step = self.e_step(lv, &inputs, mix(seed, level as u64, it as u64));
             step.refresh(nnf);
             control.check()?;
@@ -472,12 +474,13 @@ impl<'a> CoarseToFine<'a> {
 
     /// What the E-step compares against: the target fans of `colors` with their ring
     /// statistics, the ring weights and the per-source penalties (completeness and histogram
-    /// cost) of `nnf`.
+    /// costs) of `nnf`; the finest-colour histogram cost only with `fine_cost`.
     fn step_inputs(
         &self,
         lv: &Level<'_>,
         nnf: &Nnf,
         colors: &[[f32; 3]],
+        fine_cost: bool,
     ) -> Result<StepInputs, MeshMatchError> {
         let params = self.params;
         let flat: Vec<f32> = colors.iter().flatten().copied().collect();
@@ -511,6 +514,20 @@ impl<'a> CoarseToFine<'a> {
             penalty.resize(lv.ns, 0.0);
             for (p, c) in penalty.iter_mut().zip(&lv.centers) {
                 *p += fan_len * cost.excess(*c);
+            }
+        }
+        // The finest-colour histogram cost (module `fine_histogram`), left out when fields are
+        // compared (region flips).
+        if let Some(fine) = self
+            .normalization
+            .fine_histograms
+            .as_ref()
+            .filter(|_| fine_cost)
+        {
+            let cost = fine.cost(lv.index, &nnf.source, fine.strength, fan_len);
+            penalty.resize(lv.ns, 0.0);
+            for (p, c) in penalty.iter_mut().zip(cost) {
+                *p += c;
             }
         }
         Ok(StepInputs {

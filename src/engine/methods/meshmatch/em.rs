@@ -56,6 +56,7 @@ use super::features::{
     HksUnits,
 };
 use super::fidelity::Fidelity;
+use super::fine_histogram::FineHistograms;
 use super::levels::MeshLevels;
 use super::matcher::Nnf;
 use super::vote_schedule::VoteSchedule;
@@ -365,7 +366,7 @@ pub fn synthesize(
     )?;
     drop(span);
 
-    let normalization = Normalization::new(input, &src_levels, &shapes);
+    let normalization = Normalization::new(input, &src_levels, &shapes, params);
     let masks = ExampleMasks::new(input, tgt_levels, normalization.color_std)?;
     let schedule = VoteSchedule::resolve(params, hks, affinity);
     let run = CoarseToFine {
@@ -437,10 +438,17 @@ pub(super) struct Normalization {
     pub(super) src_colors: Vec<Vec<f32>>,
     /// Std of each shape dimension over the source (1 where it vanishes); empty without shape.
     pub(super) shape_std: Vec<f32>,
+    /// The source's finest-colour histograms per level, with `fine_histogram_cost` > 0.
+    pub(super) fine_histograms: Option<FineHistograms>,
 }
 
 impl Normalization {
-    fn new(input: &MatchInput<'_>, src_levels: &MeshLevels, shapes: &Shapes) -> Self {
+    fn new(
+        input: &MatchInput<'_>,
+        src_levels: &MeshLevels,
+        shapes: &Shapes,
+        params: &MeshMatchParams,
+    ) -> Self {
         let flat: Vec<f32> = input.source_colors.iter().flatten().copied().collect();
         let color_std = {
             let s = std_per_dim(&flat, 3);
@@ -449,6 +457,9 @@ impl Normalization {
                 .max(1e-3)
         };
         let normalized: Vec<f32> = flat.iter().map(|x| x / color_std).collect();
+        let strength = params.fine_histogram_strength();
+        let fine_histograms =
+            (strength > 0.0).then(|| FineHistograms::build(src_levels, &normalized, strength));
         let src_colors = src_levels.spread(0, 3, normalized);
         let shape_std: Vec<f32> = if shapes.dim > 0 {
             std_per_dim(&shapes.source[0], shapes.dim)
@@ -462,6 +473,7 @@ impl Normalization {
             color_std,
             src_colors,
             shape_std,
+            fine_histograms,
         }
     }
 }

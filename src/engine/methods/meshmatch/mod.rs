@@ -18,7 +18,8 @@
 //! - `coarse_to_fine`: its per-level loop (field initialization or upsampling, EM iterations,
 //!   the final reconstruction).
 //! - [`vote_schedule`]: the vote's σ per level and histogram strength; [`histogram`]: the
-//!   histogram-matching bias; [`scale`]: the source's scale factor.
+//!   histogram-matching bias; [`scale`]: the source's scale factor; `fine_histogram`: the
+//!   E-step's cost on the source's finest colours (ours, default in plain transfers).
 //! - [`example`]: the by-example mask (§5.3).
 //! - [`update`]: texture update (§5.3, Figure 10): the copied region of an edited target.
 //! - [`run`]: glTF in, glTF out (bake through [`super::color_output`]), the NNF artifact.
@@ -28,7 +29,11 @@ pub mod em;
 pub mod example;
 pub mod features;
 pub mod fidelity;
+mod fine_histogram;
 pub mod histogram;
+
+/// `fine_histogram_cost` in a plain transfer (README "Finest-colour histogram cost").
+pub const DEFAULT_FINE_HISTOGRAM_COST: f32 = 0.3;
 pub mod levels;
 pub mod matcher;
 pub mod nnf_file;
@@ -338,6 +343,17 @@ pub struct MeshMatchParams {
     /// three). Range: [0, 100].
     #[schemars(range(min = 0, max = 100))]
     pub histogram_cost: f32,
+    /// Histogram cost in the E-step on the source's finest colours (module `fine_histogram`,
+    /// ours): a match of source vertex `s` costs `fine_histogram_cost × (fan dimension) ×
+    /// Σ_ch Σ_b D_s · r`, `D_s` the 16-bin histogram of the finest colours under `s` and `r` the
+    /// log ratio of the share the current matches imply for the target to the level's own,
+    /// shrunk by ln 2 (no cost while every colour stays within 0.5-2× of the source's share).
+    /// Unlike `histogram_cost` it sees on the coarse levels which source regions hold the
+    /// colours that only the finest level tells apart (a cow's black patches against their grey
+    /// rims). Default: 0.3 in a plain transfer, 0 (off) in the by-example and update modes,
+    /// chosen by the README's sweep ("Finest-colour histogram cost"). Range: [0, 100].
+    #[schemars(range(min = 0, max = 100))]
+    pub fine_histogram_cost: Option<f32>,
     /// By-example mode (§5.3): which part of the target is painted. Default none.
     pub example: Option<ExampleMask>,
     /// Texture-update mode (§5.3, Figure 10): the target is an edited copy of the source; its
@@ -386,6 +402,7 @@ impl Default for MeshMatchParams {
             fan_area_weights: true,
             histogram_weight: None,
             histogram_cost: 0.0,
+            fine_histogram_cost: None,
             example: None,
             update: None,
             vertex_color_samples: shared.vertex_color_samples,
@@ -398,6 +415,17 @@ impl Default for MeshMatchParams {
 }
 
 impl MeshMatchParams {
+    /// `fine_histogram_cost` resolved: the given value, else 0.3 in a plain transfer and 0 in
+    /// the by-example and update modes (whose fixed regions already hold the source's look).
+    pub fn fine_histogram_strength(&self) -> f32 {
+        self.fine_histogram_cost
+            .unwrap_or(if self.example.is_none() && self.update.is_none() {
+                DEFAULT_FINE_HISTOGRAM_COST
+            } else {
+                0.0
+            })
+    }
+
     /// Reads and range-checks the parameters from the constraints' `params`.
     ///
     /// # Errors

@@ -71,9 +71,9 @@ impl CoarseToFine<'_> {
         Ok(flips)
     }
 
-    /// The EM energy of `nnf` (mean dissimilarity) after one vote from it, with the voted
-    /// colours and the refreshed dissimilarities; `colors` are the current colours (the
-    /// histogram bias of the vote).
+    /// The EM energy of `nnf` (mean dissimilarity, without the finest-colour histogram cost)
+    /// after one vote from it, with the voted colours and the refreshed dissimilarities;
+    /// `colors` are the current colours (the histogram bias of the vote).
     fn field_energy(
         &self,
         lv: &Level<'_>,
@@ -83,7 +83,9 @@ impl CoarseToFine<'_> {
         colors: &[[f32; 3]],
     ) -> Result<FieldEnergy, MeshMatchError> {
         let voted = self.vote_from(lv, patches, sigma, nnf, colors);
-        let inputs = self.step_inputs(lv, nnf, &voted)?;
+        // Judged without the finest-colour histogram cost (module `fine_histogram`): a flip is
+        // kept for a better map, not for a better histogram (README "Finest-colour histogram").
+        let inputs = self.step_inputs(lv, nnf, &voted, false)?;
         let step = self.e_step(lv, &inputs, mix(self.seed, 0xf11b, lv.index as u64));
         let mut refreshed = nnf.clone();
         step.refresh(&mut refreshed);
