@@ -74,5 +74,8 @@ fn bench_score_meshmatch_outputs() {
             stats.worst_ratio,
             stats.kept()
         );
+        for ((c, a), b) in stats.centers.iter().zip(&stats.source).zip(&stats.output) {
+            println!("SHARE {output}: centre {c:.2?} source {a:.3} output {b:.3}");
+        }
     }
 }

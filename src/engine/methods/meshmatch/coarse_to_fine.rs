@@ -524,7 +524,7 @@ impl<'a> CoarseToFine<'a> {
             .as_ref()
             .filter(|_| fine_cost)
         {
-            let cost = fine.cost(lv.index, &nnf.source, fine.strength, fan_len);
+            let cost = fine.cost(lv.index, &nnf.source, fan_len);
             penalty.resize(lv.ns, 0.0);
             for (p, c) in penalty.iter_mut().zip(cost) {
                 *p += c;

@@ -35,7 +35,7 @@
 
 use rayon::prelude::*;
 
-use super::histogram::BINS;
+use super::histogram::{ChannelBins, BINS};
 use super::levels::MeshLevels;
 
 /// Histogram entries per vertex: [`BINS`] per channel.
@@ -62,27 +62,13 @@ impl FineHistograms {
     /// From the finest level's colours (`[vertex][rgb]` flattened), binned over their range,
     /// for the strength `strength`.
     pub(super) fn build(levels: &MeshLevels, finest: &[f32], strength: f32) -> Self {
-        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-        for c in finest.chunks_exact(3) {
-            for k in 0..3 {
-                lo[k] = lo[k].min(c[k]);
-                hi[k] = hi[k].max(c[k]);
-            }
-        }
-        let scale: [f32; 3] = std::array::from_fn(|k| {
-            if hi[k] > lo[k] {
-                BINS as f32 / (hi[k] - lo[k])
-            } else {
-                0.0
-            }
-        });
+        let bins = ChannelBins::over(finest.chunks_exact(3).map(|c| [c[0], c[1], c[2]]));
         let mut level0 = vec![0.0f32; finest.len() / 3 * DIM];
         level0
             .par_chunks_mut(DIM)
             .zip(finest.par_chunks_exact(3))
             .for_each(|(h, c)| {
-                for k in 0..3 {
-                    let b = (((c[k] - lo[k]) * scale[k]).max(0.0) as usize).min(BINS - 1);
+                for (k, b) in bins.bins([c[0], c[1], c[2]]).into_iter().enumerate() {
                     h[k * BINS + b] = 1.0;
                 }
             });
@@ -104,15 +90,9 @@ impl FineHistograms {
         }
     }
 
-    /// The cost per source vertex of `level` for the field `matches` (target → source) at
-    /// strength `strength`, in units of the patch distance (times `fan_len`, module docs).
-    pub(super) fn cost(
-        &self,
-        level: usize,
-        matches: &[u32],
-        strength: f32,
-        fan_len: f32,
-    ) -> Vec<f32> {
+    /// The cost per source vertex of `level` for the field `matches` (target → source), in
+    /// units of the patch distance (times `fan_len`, module docs).
+    pub(super) fn cost(&self, level: usize, matches: &[u32], fan_len: f32) -> Vec<f32> {
         let hist = &self.per_level[level];
         if matches.is_empty() {
             return vec![0.0; hist.len() / DIM];
@@ -128,7 +108,7 @@ impl FineHistograms {
         for ch in excess.chunks_exact_mut(BINS) {
             let lo = ch.iter().copied().fold(0.0f32, f32::min);
             ch.iter_mut()
-                .for_each(|e| *e = strength * fan_len * (*e - lo));
+                .for_each(|e| *e = self.strength * fan_len * (*e - lo));
         }
         hist.par_chunks_exact(DIM)
             .map(|h| h.iter().zip(&excess).map(|(d, e)| d * e).sum())
@@ -183,22 +163,20 @@ mod tests {
     fn only_covers_outside_the_band_cost_and_the_missing_colour_is_cheapest() {
         let fine = four_vertices();
         // Source: black 5/8, white 3/8. Every vertex once: the source's own histogram.
-        assert!(fine
-            .cost(0, &[0, 1, 2, 3], 1.0, 1.0)
-            .iter()
-            .all(|&c| c == 0.0));
+        assert!(fine.cost(0, &[0, 1, 2, 3], 1.0).iter().all(|&c| c == 0.0));
         // Black 4/8, white 4/8: within the band.
-        assert!(fine
-            .cost(0, &[0, 2, 3, 3], 1.0, 1.0)
-            .iter()
-            .all(|&c| c == 0.0));
+        assert!(fine.cost(0, &[0, 2, 3, 3], 1.0).iter().all(|&c| c == 0.0));
         // White only: black far under its share, white over twice its.
-        let cost = fine.cost(0, &[2, 2, 2, 2], 1.0, 1.0);
+        let cost = fine.cost(0, &[2, 2, 2, 2], 1.0);
         assert_eq!((cost[0], cost[1]), (0.0, 0.0), "{cost:?}");
         assert!(cost[2] > 1.0, "{cost:?}");
         assert!((cost[3] - 0.5 * cost[2]).abs() < 1e-5, "{cost:?}");
         // The strength and the fan dimension scale it.
-        let scaled = fine.cost(0, &[2, 2, 2, 2], 0.5, 4.0);
+        let half = FineHistograms {
+            strength: 0.5,
+            ..four_vertices()
+        };
+        let scaled = half.cost(0, &[2, 2, 2, 2], 4.0);
         assert!((scaled[2] - 2.0 * cost[2]).abs() < 1e-4, "{scaled:?}");
     }
 
@@ -208,6 +186,6 @@ mod tests {
         let fine = four_vertices();
         assert!((fine.level_mean[0][0] - 0.625).abs() < 1e-6);
         assert!((fine.level_mean[0][BINS - 1] - 0.375).abs() < 1e-6);
-        assert!(fine.cost(0, &[], 1.0, 1.0).iter().all(|&c| c == 0.0));
+        assert!(fine.cost(0, &[], 1.0).iter().all(|&c| c == 0.0));
     }
 }

@@ -18,6 +18,43 @@
 /// Bins per channel (Kopf et al. 2007: 16).
 pub const BINS: usize = 16;
 
+/// [`BINS`] equal bins per colour channel over a set of colours' range.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct ChannelBins {
+    /// Per channel, the lowest colour value.
+    pub(super) lo: [f32; 3],
+    /// Per channel, bins per unit of colour (0 for a constant channel: everything in bin 0).
+    pub(super) scale: [f32; 3],
+}
+
+impl ChannelBins {
+    /// The bins over the range of `colors`.
+    pub(super) fn over(colors: impl IntoIterator<Item = [f32; 3]>) -> Self {
+        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        for c in colors {
+            for k in 0..3 {
+                lo[k] = lo[k].min(c[k]);
+                hi[k] = hi[k].max(c[k]);
+            }
+        }
+        let scale = std::array::from_fn(|k| {
+            if hi[k] > lo[k] {
+                BINS as f32 / (hi[k] - lo[k])
+            } else {
+                0.0
+            }
+        });
+        ChannelBins { lo, scale }
+    }
+
+    /// The bin of each channel of `c` (clamped to the range).
+    pub(super) fn bins(&self, c: [f32; 3]) -> [usize; 3] {
+        std::array::from_fn(|k| {
+            (((c[k] - self.lo[k]) * self.scale[k]).max(0.0) as usize).min(BINS - 1)
+        })
+    }
+}
+
 /// The vote weight factor of every colour, from the source's and the target's histograms.
 #[derive(Clone, Debug)]
 pub struct HistogramBias {
@@ -34,20 +71,7 @@ impl HistogramBias {
         if strength <= 0.0 || source.is_empty() || target.is_empty() {
             return None;
         }
-        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-        for c in source {
-            for k in 0..3 {
-                lo[k] = lo[k].min(c[k]);
-                hi[k] = hi[k].max(c[k]);
-            }
-        }
-        let scale: [f32; 3] = std::array::from_fn(|k| {
-            if hi[k] > lo[k] {
-                BINS as f32 / (hi[k] - lo[k])
-            } else {
-                0.0
-            }
-        });
+        let ChannelBins { lo, scale } = ChannelBins::over(source.iter().copied());
         let mut bias = HistogramBias {
             lo,
             scale,
@@ -74,9 +98,11 @@ impl HistogramBias {
 
     /// The bin of each channel of `c` (clamped to the source's range).
     fn bins(&self, c: [f32; 3]) -> [usize; 3] {
-        std::array::from_fn(|k| {
-            (((c[k] - self.lo[k]) * self.scale[k]).max(0.0) as usize).min(BINS - 1)
-        })
+        ChannelBins {
+            lo: self.lo,
+            scale: self.scale,
+        }
+        .bins(c)
     }
 
     /// `λ · BINS · Σ_ch max(0, H_t − H_s)` at colour `c`: how over-represented `c` is in the

@@ -31,9 +31,6 @@ pub mod features;
 pub mod fidelity;
 mod fine_histogram;
 pub mod histogram;
-
-/// `fine_histogram_cost` in a plain transfer (README "Finest-colour histogram cost").
-pub const DEFAULT_FINE_HISTOGRAM_COST: f32 = 0.3;
 pub mod levels;
 pub mod matcher;
 pub mod nnf_file;
@@ -48,6 +45,9 @@ pub mod vote_schedule;
 
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
+
+/// `fine_histogram_cost` in a plain transfer (README "Finest-colour histogram cost").
+pub const DEFAULT_FINE_HISTOGRAM_COST: f32 = 0.3;
 
 use crate::engine::asset::constraints::{Constraints, ConstraintsError};
 use crate::engine::control::Cancelled;

@@ -84,7 +84,7 @@ impl CoarseToFine<'_> {
     ) -> Result<FieldEnergy, MeshMatchError> {
         let voted = self.vote_from(lv, patches, sigma, nnf, colors);
         // Judged without the finest-colour histogram cost (module `fine_histogram`): a flip is
-        // kept for a better map, not for a better histogram (README "Finest-colour histogram").
+        // kept for a better map, not for a better histogram (README "Finest-colour histogram cost").
         let inputs = self.step_inputs(lv, nnf, &voted, false)?;
         let step = self.e_step(lv, &inputs, mix(self.seed, 0xf11b, lv.index as u64));
         let mut refreshed = nnf.clone();
