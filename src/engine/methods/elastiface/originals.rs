@@ -326,21 +326,28 @@ impl Registration<'_> {
                 ..PAPER
             };
             for _ in 0..rounds.per_level {
-                let near = target.closest_near(&x, Some(&previous));
-                let mut c = target.points(&near);
-                if let Some(b) = rounds.boundary {
-                    b.snap(&x, &mut c);
-                }
-                previous = near;
                 let (rows, faces) = back.rows(&x, self.faces);
                 let extra = Extra {
                     rows: &rows,
                     faces: &faces,
                     fit_scale,
                 };
-                let factor = self.factor_extra(&areas, mu, &extra)?;
-                let fixed = self.fixed_rhs_extra(rest, &areas, &target_refs, mu, &extra);
-                x = self.solve_scaled(&factor, &fixed, &c, mu, fit_scale)?;
+                // The factorisation runs on one core; the forward closest points and the
+                // right-hand side, which the matrix does not need, on the other meanwhile.
+                let (factor, (near, c, fixed)) = rayon::join(
+                    || self.factor_extra(&areas, mu, &extra),
+                    || {
+                        let near = target.closest_near(&x, Some(&previous));
+                        let mut c = target.points(&near);
+                        if let Some(b) = rounds.boundary {
+                            b.snap(&x, &mut c);
+                        }
+                        let fixed = self.fixed_rhs_extra(rest, &areas, &target_refs, mu, &extra);
+                        (near, c, fixed)
+                    },
+                );
+                previous = near;
+                x = self.solve_scaled(&factor?, &fixed, &c, mu, fit_scale)?;
                 report.factorisations += 1;
                 report.solves += 1;
                 work.tick(1)?;
