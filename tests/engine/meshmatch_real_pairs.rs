@@ -154,7 +154,8 @@ fn real_pairs_with_correspondences_keep_the_source_statistics() {
 /// 0.099 / 1.87. Seeds 7 and 8 are the first two where the defaults missed before the
 /// finest-colour cost (Spot → cat's black patches shrank to dots: worst ratio 8.69 and 3.00),
 /// so the test fails with `fine_histogram_cost` 0. Over seeds 1-30 the defaults meet the
-/// targets on 81 of 90 runs; the misses are Blub's orange face (six seeds), two Blub runs at
+/// targets on 87 of 90 runs (81 before the restarts on a deviation removed Blub's orange face,
+/// `blub_orange_face_seed_is_restarted_on_its_deviation`); the misses are two Blub runs at
 /// 2.01-2.04 and Fox → koala's seed 2 (TV 0.127), all listed in the README.
 #[test]
 #[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
@@ -162,10 +163,46 @@ fn real_pairs_without_correspondences_keep_the_source_statistics() {
     assert_pairs_keep_the_statistics(false, serde_json::json!({}), "plain", &[1, 7, 8]);
 }
 
+/// Blub → fish seed 11 without correspondences, one of the six seeds whose coarsest level
+/// settles in the orange-face basin (README "Restarts on a deviation"): its first start's
+/// finest-colour deviation is beyond the default limit, so the coarsest level runs four starts
+/// and the output keeps the source's statistics; with the restarts on a deviation off
+/// (`coarsest_restart_deviation` 0) the fish's face comes out orange (orange 23 % → 36 %, TV
+/// 0.137).
+#[test]
+#[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
+fn blub_orange_face_seed_is_restarted_on_its_deviation() {
+    let (src, tgt, name) = PAIRS[1];
+    let (sn, sb) = shared_bytes(src);
+    let (tn, tb) = shared_bytes(tgt);
+    let none = serde_json::json!([]);
+    let run = |params: serde_json::Value, label: &str| {
+        let out = run_pair((&sn, &sb), (&tn, &tb), &none, &params, 11);
+        let file = format!("meshmatch_{label}_blub_fish_11.glb");
+        assert_validator_clean(&out.model, &file);
+        let stats = color_statistics(&load_bytes(&sb, &sn), &load_bytes(&out.model, &file));
+        eprintln!("{name} {label} seed 11: {stats}");
+        let levels = out.report.method_report["synthesis"]["levels"].clone();
+        (stats, levels[0].clone())
+    };
+    let (stats, coarsest) = run(serde_json::json!({}), "deviation");
+    let deviation = coarsest["first_start_deviation"].as_f64().unwrap();
+    assert!(deviation > 0.916, "{coarsest}");
+    assert_eq!(coarsest["restart_energies"].as_array().unwrap().len(), 4);
+    assert!(stats.tv <= 0.12 && stats.worst_ratio <= 2.0, "{stats}");
+    let (off, coarsest) = run(
+        serde_json::json!({"coarsest_restart_deviation": 0}),
+        "nodeviation",
+    );
+    assert_eq!(coarsest["restart_energies"].as_array().unwrap().len(), 0);
+    assert!(off.tv > 0.12, "without the restarts the orange face: {off}");
+}
+
 /// With four random starts of the coarsest level (`coarsest_restarts` 4, an option; README
 /// "Coarsest restarts"), seeds 1 and 4: Spot → cat 0.041 / 1.32, 0.075 / 1.57; Blub → fish
-/// 0.042 / 1.71, 0.035 / 1.42; Fox → koala 0.096 / 1.83, 0.095 / 1.79. Fails with one start
-/// (the default): Blub → fish seed 4 comes out with an orange face, TV 0.127.
+/// 0.042 / 1.71, 0.035 / 1.42; Fox → koala 0.096 / 1.83, 0.095 / 1.79 (measured before the
+/// finest-colour cost). It failed with one start then (Blub → fish seed 4 came out with an
+/// orange face, TV 0.127); the defaults now restart that seed on its deviation.
 #[test]
 #[ignore = "needs the shared assets (RETEX_SHARED_ASSETS or ../shared/assets)"]
 fn real_pairs_with_coarsest_restarts_keep_the_source_statistics() {

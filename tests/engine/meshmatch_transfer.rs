@@ -467,6 +467,14 @@ fn bad_parameters_name_their_field() {
             serde_json::json!({"fine_histogram_cost": 101}),
             "params.fine_histogram_cost",
         ),
+        (
+            serde_json::json!({"coarsest_restart_deviation": -0.1}),
+            "params.coarsest_restart_deviation",
+        ),
+        (
+            serde_json::json!({"coarsest_restart_deviation": 101}),
+            "params.coarsest_restart_deviation",
+        ),
         (serde_json::json!({"fan_area_weights": "yes"}), "params"),
         (
             serde_json::json!({"example": {"vertex_color": {"channel": "q", "threshold": 0.5}}}),

@@ -9,7 +9,9 @@
 //! passes ran. On the coarse levels (at most `region_flip_vertices` target vertices) the
 //! field's coherent regions are then re-grown from their neighbours and kept when the energy
 //! drops (region flips, ours: [`super::region_flip`], `flips`). The coarsest level's EM runs
-//! from `coarsest_restarts` random fields and keeps the lowest-energy one (ours, `restarts`).
+//! from `coarsest_restarts` random fields and keeps the lowest-energy one, or from 4 when its
+//! first start's finest-colour statistics deviate beyond `coarsest_restart_deviation` (ours,
+//! `restarts`).
 //! Every E-step adds the finest-colour histogram cost of the current field (ours,
 //! [`super::fine_histogram`]); the region flips compare fields without it.
 //! On the finest level the colours are finally copied from the matches (nearest-neighbour
@@ -186,6 +188,7 @@ impl<'a> CoarseToFine<'a> {
             iterations,
             converged,
             restart_energies,
+            first_start_deviation,
         } = self.start(&lv, &coarser, &patches, sigma)?;
         let region_flips = self.flip_regions(&lv, &patches, sigma, &mut nnf, &mut colors)?;
         if level == 0 && params.nearest_neighbor_final {
@@ -221,6 +224,7 @@ impl<'a> CoarseToFine<'a> {
             converged,
             region_flips,
             restart_energies,
+            first_start_deviation,
             usable_sources: lv
                 .allowed
                 .as_ref()
@@ -522,7 +526,7 @@ impl<'a> CoarseToFine<'a> {
             .normalization
             .fine_histograms
             .as_ref()
-            .filter(|_| fine_cost)
+            .filter(|f| fine_cost && f.strength > 0.0)
         {
             let cost = fine.cost(lv.index, &nnf.source, fan_len);
             penalty.resize(lv.ns, 0.0);

@@ -154,9 +154,15 @@ pub struct LevelReport {
     pub converged: bool,
     /// Coherent regions of the field re-grown from a neighbour (module `region_flip`).
     pub region_flips: usize,
-    /// The coarsest level with `coarsest_restarts` > 1: the final EM energy of every random
+    /// The coarsest level with several starts (`coarsest_restarts` > 1, or a first start beyond
+    /// `coarsest_restart_deviation`): the final EM energy of every random
     /// start, in order (the lowest was kept); empty otherwise.
     pub restart_energies: Vec<f64>,
+    /// The coarsest level of a plain transfer with `coarsest_restart_deviation` > 0: the first
+    /// start's largest finest-colour log ratio (module `fine_histogram`), which decided whether
+    /// the level was restarted; absent otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub first_start_deviation: Option<f32>,
     /// By-example mode: source vertices matches may use on this level (whole fan painted).
     pub usable_sources: Option<usize>,
 }
@@ -438,7 +444,8 @@ pub(super) struct Normalization {
     pub(super) src_colors: Vec<Vec<f32>>,
     /// Std of each shape dimension over the source (1 where it vanishes); empty without shape.
     pub(super) shape_std: Vec<f32>,
-    /// The source's finest-colour histograms per level, with `fine_histogram_cost` > 0.
+    /// The source's finest-colour histograms per level, with `fine_histogram_cost` or
+    /// `coarsest_restart_deviation` > 0.
     pub(super) fine_histograms: Option<FineHistograms>,
 }
 
@@ -458,8 +465,12 @@ impl Normalization {
         };
         let normalized: Vec<f32> = flat.iter().map(|x| x / color_std).collect();
         let strength = params.fine_histogram_strength();
-        let fine_histograms =
-            (strength > 0.0).then(|| FineHistograms::build(src_levels, &normalized, strength));
+        // The restarts on a deviation read them too, in a plain transfer (the by-example and
+        // update modes start the coarsest level once).
+        let plain = params.example.is_none() && params.update.is_none();
+        let fine_histograms = (strength > 0.0
+            || (plain && params.coarsest_restart_deviation > 0.0))
+            .then(|| FineHistograms::build(src_levels, &normalized, strength));
         let src_colors = src_levels.spread(0, 3, normalized);
         let shape_std: Vec<f32> = if shapes.dim > 0 {
             std_per_dim(&shapes.source[0], shapes.dim)

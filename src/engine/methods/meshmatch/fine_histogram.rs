@@ -27,6 +27,10 @@
 //! for a better map, not a better histogram; with the cost in the comparison the `--round`
 //! capsule's seed 1 keeps its mirror seam (×1.20).
 //!
+//! The same log ratio, unshrunk and at its largest ([`FineHistograms::deviation`]), decides
+//! whether the coarsest level is restarted (`coarsest_restart_deviation`, module
+//! `coarse_to_fine::restarts`).
+//!
 //! Constants (ours, none published): [`DEAD_BAND`] is the band, [`SHARE_FLOOR`] keeps
 //! nearly empty bins from dominating, and `μ` (default 0.3 in plain transfers) is chosen from
 //! the README's sweep.
@@ -116,6 +120,23 @@ impl FineHistograms {
     }
 }
 
+impl FineHistograms {
+    /// The field's largest deviation on `level`: over every channel and bin, the largest
+    /// `|ln((H_t + f) / (H_s + f))|` of the share the matches imply for the target against the
+    /// level's own (the unshrunk log ratio of [`Self::cost`]). 0 for an empty field.
+    pub(super) fn deviation(&self, level: usize, matches: &[u32]) -> f32 {
+        if matches.is_empty() {
+            return 0.0;
+        }
+        let implied = mean_histogram(&self.per_level[level], Some(matches));
+        implied
+            .iter()
+            .zip(&self.level_mean[level])
+            .map(|(t, s)| ((t + SHARE_FLOOR) / (s + SHARE_FLOOR)).ln().abs())
+            .fold(0.0, f32::max)
+    }
+}
+
 /// The mean of the histograms `hist` (`DIM` per vertex) over all vertices, or over the vertices
 /// `picks` lists (with repeats).
 fn mean_histogram(hist: &[f32], picks: Option<&[u32]>) -> [f32; DIM] {
@@ -187,5 +208,17 @@ mod tests {
         assert!((fine.level_mean[0][0] - 0.625).abs() < 1e-6);
         assert!((fine.level_mean[0][BINS - 1] - 0.375).abs() < 1e-6);
         assert!(fine.cost(0, &[], 1.0).iter().all(|&c| c == 0.0));
+    }
+
+    /// The deviation is the largest unshrunk log ratio: 0 for the source's own cover; a white
+    /// cover's is the black bin's (0 against 5/8), not the white one's (1 against 3/8).
+    #[test]
+    fn the_deviation_is_the_largest_log_ratio() {
+        let fine = four_vertices();
+        assert!(fine.deviation(0, &[0, 1, 2, 3]) < 1e-6);
+        let white = fine.deviation(0, &[2, 2, 2, 2]);
+        let expected = ((0.625f32 + 0.01) / 0.01).ln().max((1.01f32 / 0.385).ln());
+        assert!((white - expected).abs() < 1e-4, "{white} {expected}");
+        assert_eq!(fine.deviation(0, &[]), 0.0);
     }
 }

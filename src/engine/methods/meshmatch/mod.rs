@@ -49,6 +49,13 @@ use serde::{Deserialize, Serialize};
 /// `fine_histogram_cost` in a plain transfer (README "Finest-colour histogram cost").
 pub const DEFAULT_FINE_HISTOGRAM_COST: f32 = 0.3;
 
+/// `coarsest_restart_deviation`: ln 2.5 (README "Restarts on a deviation").
+pub const DEFAULT_RESTART_DEVIATION: f32 = 0.916;
+
+/// Starts of the coarsest level when its first start deviates (`coarsest_restart_deviation`):
+/// the number the sweep of `coarsest_restarts` chose (README "Coarsest restarts").
+pub const DEVIATION_RESTARTS: usize = 4;
+
 use crate::engine::asset::constraints::{Constraints, ConstraintsError};
 use crate::engine::control::Cancelled;
 
@@ -316,9 +323,21 @@ pub struct MeshMatchParams {
     /// energy is kept, so that one unlucky start does not settle the whole synthesis in a poor
     /// basin. Default 1, the paper's single random start; 4 is the setting for organic pairs
     /// without correspondences, where it fixed the one miss of the real pairs' statistics, but it
-    /// costs the symmetric stripe cases (README "meshmatch", coarsest restarts).
+    /// costs the symmetric stripe cases (README "meshmatch", coarsest restarts). A first start
+    /// beyond `coarsest_restart_deviation` runs at least 4 starts whatever this is.
     #[schemars(range(min = 1, max = 64))]
     pub coarsest_restarts: usize,
+    /// Restarts of the coarsest level on demand (module `coarse_to_fine::restarts`, ours): when
+    /// the field of the coarsest level's first start implies, for some channel bin of the
+    /// source's finest colours, a share whose log ratio to the source's own share is beyond
+    /// this value (module `fine_histogram`, its deviation), the level runs `max(4,
+    /// coarsest_restarts)` starts and keeps the lowest final energy. Default ln 2.5 = 0.916 (a
+    /// colour at more than 2.5× or under 0.4× of its share): the first starts of the three
+    /// stripe files reach at most 0.79, those of Blub's orange face 0.98-1.06 (README
+    /// "Restarts on a deviation"). 0: never. Needs the finest-colour histograms (built for this
+    /// alone when `fine_histogram_cost` is 0). Range: [0, 100].
+    #[schemars(range(min = 0, max = 100))]
+    pub coarsest_restart_deviation: f32,
     /// Weight each fan ring in the patch distance by the surface area its samples stand for
     /// (ring `i` of `R` at radius `(i + 1)·h` covers an annulus sector ∝ `i + 1`: weights
     /// `2(i + 1)/(R + 1)`, mean 1), so the distance is area-uniform over the fan's disc as the
@@ -399,6 +418,7 @@ impl Default for MeshMatchParams {
             randomized_rotations: false,
             region_flip_vertices: 600,
             coarsest_restarts: 1,
+            coarsest_restart_deviation: DEFAULT_RESTART_DEVIATION,
             fan_area_weights: true,
             histogram_weight: None,
             histogram_cost: 0.0,
