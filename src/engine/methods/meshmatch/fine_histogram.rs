@@ -118,9 +118,7 @@ impl FineHistograms {
             .map(|h| h.iter().zip(&excess).map(|(d, e)| d * e).sum())
             .collect()
     }
-}
 
-impl FineHistograms {
     /// The field's largest deviation on `level`: over every channel and bin, the largest
     /// `|ln((H_t + f) / (H_s + f))|` of the share the matches imply for the target against the
     /// level's own (the unshrunk log ratio of [`Self::cost`]). 0 for an empty field.

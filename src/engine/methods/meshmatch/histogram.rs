@@ -22,9 +22,9 @@ pub const BINS: usize = 16;
 #[derive(Clone, Copy, Debug)]
 pub(super) struct ChannelBins {
     /// Per channel, the lowest colour value.
-    pub(super) lo: [f32; 3],
+    lo: [f32; 3],
     /// Per channel, bins per unit of colour (0 for a constant channel: everything in bin 0).
-    pub(super) scale: [f32; 3],
+    scale: [f32; 3],
 }
 
 impl ChannelBins {
@@ -58,8 +58,7 @@ impl ChannelBins {
 /// The vote weight factor of every colour, from the source's and the target's histograms.
 #[derive(Clone, Debug)]
 pub struct HistogramBias {
-    lo: [f32; 3],
-    scale: [f32; 3],
+    bins: ChannelBins,
     /// `λ · BINS · max(0, H_t − H_s)` per channel and bin.
     excess: [[f32; BINS]; 3],
 }
@@ -71,10 +70,8 @@ impl HistogramBias {
         if strength <= 0.0 || source.is_empty() || target.is_empty() {
             return None;
         }
-        let ChannelBins { lo, scale } = ChannelBins::over(source.iter().copied());
         let mut bias = HistogramBias {
-            lo,
-            scale,
+            bins: ChannelBins::over(source.iter().copied()),
             excess: [[0.0; BINS]; 3],
         };
         let shares = |colors: &[[f32; 3]]| {
@@ -98,11 +95,7 @@ impl HistogramBias {
 
     /// The bin of each channel of `c` (clamped to the source's range).
     fn bins(&self, c: [f32; 3]) -> [usize; 3] {
-        ChannelBins {
-            lo: self.lo,
-            scale: self.scale,
-        }
-        .bins(c)
+        self.bins.bins(c)
     }
 
     /// `λ · BINS · Σ_ch max(0, H_t − H_s)` at colour `c`: how over-represented `c` is in the
